@@ -1,0 +1,139 @@
+"""Running a scene: the `Simulation` object and `simulate()`."""
+from __future__ import annotations
+
+import math
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from .integrators import state_class
+from .model import ClothModel, build_model
+from .scene import Scene, load_scene
+from .system import System, build_system, stability_limit
+
+
+class DivergenceError(RuntimeError):
+    """The simulation blew up; `str(err)` names the frame, step and quantity."""
+
+
+class StabilityWarning(UserWarning):
+    """The time step exceeds the explicit stability limit of the spring lattice."""
+
+
+class Simulation:
+    """A scene being simulated, stepped by hand or frame by frame.
+
+    Attributes: `scene`, `model` (the cloth model: springs, pins, masses), `system` (the same
+    packed for the kernels), `positions` (N, 3) and `last_positions` (N, 3) views of the current
+    state, `pinned` (N,) bool, `springs` (a, b, rest, type arrays in SPEC order), `step_count`,
+    `time` (seconds simulated).
+    """
+
+    def __init__(
+        self,
+        scene: Scene | dict | str | os.PathLike,
+        *,
+        initial_positions: np.ndarray | None = None,
+    ) -> None:
+        self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        self.model: ClothModel = build_model(self.scene, initial_positions)
+        self.system: System = build_system(self.scene, self.model)
+        self.integrator = self.scene.simulation.integrator
+        self._state = state_class(self.integrator)(self.system)
+        self.step_count = 0
+        self.omega_max, self.dt_max = stability_limit(self.model)
+        if self.system.dt > self.dt_max:
+            warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
+
+    # --- state -------------------------------------------------------------------------
+    @property
+    def positions(self) -> np.ndarray:
+        """Current positions, (N, 3) view (row-major points)."""
+        return self._state.x.T
+
+    @property
+    def last_positions(self) -> np.ndarray:
+        """Positions one step ago, (N, 3) (Verlet state)."""
+        return self._state.last.T
+
+    @property
+    def velocities(self) -> np.ndarray:
+        return self._state.velocity(self.system).T
+
+    @property
+    def pinned(self) -> np.ndarray:
+        return self.model.pinned.astype(bool)
+
+    @property
+    def springs(self) -> dict[str, np.ndarray]:
+        """The spring list in SPEC order: endpoints a, b, rest length, type (0/1/2), enabled."""
+        m = self.model
+        return {"a": m.spring_a, "b": m.spring_b, "rest": m.spring_rest,
+                "type": m.spring_type, "enabled": m.spring_enabled}
+
+    @property
+    def dt(self) -> float:
+        return self.system.dt
+
+    @property
+    def time(self) -> float:
+        return self.step_count * self.system.dt
+
+    # --- stepping ----------------------------------------------------------------------
+    def step(self, steps: int = 1) -> None:
+        """Advance by `steps` time steps; raises DivergenceError if the run blows up."""
+        done, kinetic, bound = self._state.advance(self.system, steps)
+        self.step_count += done
+        if done < steps or not math.isfinite(kinetic):
+            raise DivergenceError(self._divergence_message(kinetic, bound))
+
+    def advance(self, frames: int = 1) -> None:
+        """Advance by whole frames (steps_per_frame steps each)."""
+        self.step(frames * self.system.steps_per_frame)
+
+    def frames(self, count: int):
+        """Yield the positions (N, 3) after each of the next `count` frames (views: copy to keep)."""
+        for _ in range(count):
+            self.advance(1)
+            yield self.positions
+
+    # --- messages ----------------------------------------------------------------------
+    def stability_message(self) -> str:
+        spf = self.system.steps_per_frame
+        needed = math.ceil(spf * self.system.dt / self.dt_max)
+        return (
+            f"time step {self.system.dt:.3g} s exceeds the explicit stability limit "
+            f"{self.dt_max:.3g} s of this cloth (omega_max = {self.omega_max:.4g} rad/s from "
+            f"ks = {self.scene.cloth.ks:g} and point mass {self.model.mass:.3g} kg): expect a "
+            f"blow-up; use simulation.steps_per_frame >= {needed} or a smaller cloth.ks"
+        )
+
+    def _divergence_message(self, kinetic: float, bound: float) -> str:
+        spf = self.system.steps_per_frame
+        frame, step_in_frame = divmod(self.step_count - 1, spf)
+        speed = float(np.sqrt(np.nanmax(np.sum(self.velocities**2, axis=1))))
+        if not math.isfinite(kinetic) or not np.all(np.isfinite(self._state.x)):
+            what = "positions became non-finite (NaN or infinity)"
+        else:
+            what = (f"kinetic energy {kinetic:.4g} J exceeds {bound:.4g} J, more than gravity "
+                    f"can have supplied (max point speed {speed:.3g} m/s)")
+        advice = (self.stability_message() if self.system.dt > self.dt_max else
+                  "use a larger simulation.steps_per_frame or a smaller cloth.ks")
+        return (f"simulation diverged at frame {frame + 1}, step {step_in_frame + 1} of "
+                f"{spf} (t = {self.time:.4f} s): {what}; {advice}")
+
+
+def simulate(
+    scene: Scene | dict | str | os.PathLike | Path,
+    frames: int,
+    *,
+    initial_positions: np.ndarray | None = None,
+) -> np.ndarray:
+    """Positions after each of `frames` frames: float64 array (frames, N, 3)."""
+    sim = Simulation(scene, initial_positions=initial_positions)
+    out = np.empty((frames, sim.model.n, 3), dtype=np.float64)
+    for f, positions in enumerate(sim.frames(frames)):
+        out[f] = positions
+    return out

@@ -1,0 +1,153 @@
+"""The scene packed for the kernels: what every integrator steps, and the divergence guard.
+
+`System` is a NamedTuple of flat arrays and numbers (numba passes it to kernels as a
+tuple); it joins the cloth model, the colliders and the time step, and holds no state that
+changes during a run. Integrators keep their own state arrays.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .colliders import pack_colliders
+from .constraints import stretch_limits
+from .model import ClothModel
+from .scene import Scene
+from .self_collision import SelfCollisionScratch
+
+
+class System(NamedTuple):
+    nw: int
+    nh: int
+    width: float
+    height: float
+    thickness: float
+    x0: np.ndarray  # (3, N)
+    pinned: np.ndarray  # (N,) uint8
+    exists: np.ndarray  # (6, N) bool
+    rest: np.ndarray  # (6, N)
+    stiffness: np.ndarray  # (6,)
+    limit: np.ndarray  # (6, N) 1.1 * rest
+    limit_sq_lo: np.ndarray  # (6, N)
+    mass: float
+    gravity: np.ndarray  # (3,)
+    dt: float
+    damping: float  # fraction of velocity lost per step
+    steps_per_frame: int
+    collider_kinds: np.ndarray
+    collider_params: np.ndarray
+    self_collision: bool
+    scratch: tuple  # SelfCollisionScratch.as_tuple()
+    slack_speed: float  # speed every point may gain without energy input (m/s), see guard
+
+
+def build_system(scene: Scene, model: ClothModel) -> System:
+    sim = scene.simulation
+    limit, limit_sq_lo = stretch_limits(model.rest)
+    kinds, params = pack_colliders(scene.colliders)
+    dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
+    return System(
+        nw=model.nw,
+        nh=model.nh,
+        width=model.width,
+        height=model.height,
+        thickness=model.thickness,
+        x0=model.x0,
+        pinned=model.pinned,
+        exists=model.exists,
+        rest=model.rest,
+        stiffness=model.stiffness,
+        limit=limit,
+        limit_sq_lo=limit_sq_lo,
+        mass=model.mass,
+        gravity=np.array(sim.gravity, dtype=np.float64),
+        dt=dt,
+        damping=model.damping,
+        steps_per_frame=int(sim.steps_per_frame),
+        collider_kinds=kinds,
+        collider_params=params,
+        self_collision=scene.self_collision,
+        scratch=SelfCollisionScratch(model.n).as_tuple(),
+        slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision),
+    )
+
+
+def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
+    """Speed a point may reach without any energy source (collision and constraint pushes).
+
+    A self-collision push moves a point by up to 2 * thickness / steps_per_frame in one step
+    of dt, i.e. at up to 2 * thickness * frames_per_sec; 0.5 m/s covers the small position
+    corrections of collider projection and the stretch limit.
+    """
+    return 0.5 + (2.0 * thickness * frames_per_sec if self_collision else 0.0)
+
+
+GUARD_FACTOR = 2.0
+
+
+@njit(cache=True, nogil=True)
+def energy_guard(x, v_sq_sum, system):
+    """Kinetic-energy bound of the guard: returns (kinetic energy, bound) in joules.
+
+    No physical run gains more kinetic energy than gravity has done work on it: with the
+    springs starting at rest length, colliders fixed and damping only removing energy,
+        KE(t) <= M |g| * max(0, drop of the centre of mass along g since t = 0).
+    The guard allows GUARD_FACTOR times that (velocities are finite-difference estimates)
+    plus N * m * slack_speed**2 / 2 for collision and constraint pushes. `v_sq_sum` is the
+    sum over free points of |v|^2.
+    """
+    g = system.gravity
+    g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+    drop = 0.0
+    if g_norm > 0.0:
+        x0 = system.x0
+        for p in range(x.shape[1]):
+            drop += (
+                (x[0, p] - x0[0, p]) * g[0]
+                + (x[1, p] - x0[1, p]) * g[1]
+                + (x[2, p] - x0[2, p]) * g[2]
+            )
+        drop /= g_norm  # summed over points: N * (drop of the centre of mass)
+    m = system.mass
+    n = x.shape[1]
+    kinetic = 0.5 * m * v_sq_sum
+    bound = GUARD_FACTOR * m * g_norm * max(drop, 0.0) + 0.5 * n * m * system.slack_speed**2
+    return kinetic, bound
+
+
+def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float]:
+    """(omega_max, dt_max): highest angular frequency of the spring lattice and the largest
+    stable step of the damped Verlet update for it.
+
+    omega_max**2 is the largest eigenvalue of M^-1 K for the infinite lattice with the
+    cloth's spacing (a finite cloth's eigenvalues lie below it): for a plane wave with phase
+    theta per grid step, each spring direction e (lattice offset o, stiffness k) contributes
+    (k / m) * 2 (1 - cos(theta . o)) * e e^T to the 3x3 dynamical matrix; we take its largest
+    eigenvalue over a grid of theta in [0, pi] x [-pi, pi] (the maximum for square cells is
+    8 ks / m at theta = (pi, 0)). Damped Verlet x' = x + (1 - c)(x - x_last) + a dt^2 is stable
+    for omega dt < sqrt(2 (2 - c)), i.e. dt_max = sqrt(2 (2 - c)) / omega_max (~ 2 / omega_max).
+    """
+    from .model import DIRECTION_DI, DIRECTION_DJ
+
+    sx = model.width / (model.nw - 1)
+    sy = model.height / (model.nh - 1)
+    tx = np.linspace(0.0, math.pi, samples)
+    ty = np.linspace(-math.pi, math.pi, 2 * samples - 1)
+    theta_x, theta_y = np.meshgrid(tx, ty, indexing="ij")
+    dyn = np.zeros(theta_x.shape + (3, 3))
+    for d in range(6):
+        k = model.stiffness[d]
+        if k == 0.0:
+            continue
+        oj, oi = DIRECTION_DJ[d], DIRECTION_DI[d]
+        e = np.array([oj * sx, oi * sy, 0.0])
+        e /= np.linalg.norm(e)
+        weight = (k / model.mass) * 2.0 * (1.0 - np.cos(theta_x * oj + theta_y * oi))
+        dyn += weight[..., None, None] * np.outer(e, e)
+    omega_max = math.sqrt(max(float(np.linalg.eigvalsh(dyn).max()), 0.0))
+    if omega_max == 0.0:
+        return 0.0, math.inf
+    return omega_max, math.sqrt(2.0 * (2.0 - model.damping)) / omega_max
