@@ -1,35 +1,88 @@
-"""Provot's stretch limit (SPEC section 2, step 5): Gauss-Seidel over the spring list."""
+"""Provot's stretch limit (SPEC section 2, step 5): Gauss-Seidel over the spring list.
+
+Walking every spring in order is a serial chain, so the walk visits only the springs that
+can need a correction: a parallel pre-pass marks, in a 6-bit mask per point, the springs
+longer than (slightly less than) their limit; every correction then marks the later springs
+that share a moved point, since their lengths changed. An unmarked spring has the same
+endpoints as in the pre-pass, so skipping it is exactly what the full walk would do.
+"""
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from .model import DIRECTION_DI, DIRECTION_DJ
-
-_DI = DIRECTION_DI
-_DJ = DIRECTION_DJ
+from .forces import CHUNKS, _chunk
 
 STRETCH_LIMIT = 1.1  # a spring may reach 110 % of its rest length
 
 
+def stretch_limits(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(limit, limit_sq_lo) for `limit_stretch` from the rest lengths (6, N): limit_sq_lo is
+    limit**2 lowered by 1e-9 relative, a safe filter before the exact test."""
+    limit = STRETCH_LIMIT * rest
+    return limit, limit * limit * (1.0 - 1e-9)
+
+
+def existence_bits(exists: np.ndarray) -> np.ndarray:
+    """(N + pad,) uint8: bit d set when spring (d, p) exists (pad zero)."""
+    n = exists.shape[1]
+    bits = np.zeros(n + 2 * n + 2, dtype=np.uint8)  # pad covers p - offset for any offset
+    for d in range(6):
+        bits[:n] |= exists[d].astype(np.uint8) << d
+    return bits
+
+
+def candidate_mask(n: int) -> np.ndarray:
+    return np.zeros(3 * n + 2, dtype=np.uint8)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, mask):
+    n = x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        mask[lo:hi] = 0
+        for d in range(6):
+            off = offsets[d]
+            for p in range(max(lo, -off), hi):
+                q = p + off
+                dx = x[0, q] - x[0, p]
+                dy = x[1, q] - x[1, p]
+                dz = x[2, q] - x[2, p]
+                long = dx * dx + dy * dy + dz * dz > limit_sq_lo[d, p]
+                mask[p] |= np.uint8(long) << np.uint8(d)
+        for p in range(lo, hi):
+            mask[p] &= exist_bits[p]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _mark_after(r, p, d, offsets, exist_bits, mask):
+    """Mark the springs that contain point r and come after spring (d, p) in the list."""
+    if r == p:
+        higher = np.uint8(0x3F) & ~np.uint8((2 << d) - 1)
+        mask[p] |= exist_bits[p] & higher
+    for e in range(6):
+        s = r - offsets[e]  # the point whose spring e ends at r
+        if s > p or (s == p and e > d):
+            mask[s] |= exist_bits[s] & (np.uint8(1) << np.uint8(e))
+
+
 @njit(cache=True, nogil=True)
-def limit_stretch(x, nw, exists, limit, limit_sq_lo, pinned):
+def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, mask):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
 
-    Half the correction goes to each end, all of it to the free end if one end is pinned.
-    `limit_sq_lo` is a slightly lowered limit**2: springs below it are skipped without a square
-    root; the others take the exact test `length > limit`, so the filter never changes a bit.
+    Half the correction goes to each end, all of it to the free end if one end is pinned,
+    none if both are. `mask` is scratch (see candidate_mask).
     """
     n = x.shape[1]
+    _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, mask)
     for p in range(n):
-        pa = pinned[p] != 0
+        if mask[p] == 0:
+            continue
         for d in range(6):
-            if not exists[d, p]:
+            if not (mask[p] >> d) & 1:
                 continue
-            q = p + _DI[d] * nw + _DJ[d]
-            pb = pinned[q] != 0
-            if pa and pb:
-                continue
+            q = p + offsets[d]
             dx = x[0, q] - x[0, p]
             dy = x[1, q] - x[1, p]
             dz = x[2, q] - x[2, p]
@@ -38,7 +91,9 @@ def limit_stretch(x, nw, exists, limit, limit_sq_lo, pinned):
                 continue
             length = np.sqrt(length_sq)
             lim = limit[d, p]
-            if not length > lim:
+            pa = pinned[p] != 0
+            pb = pinned[q] != 0
+            if not length > lim or (pa and pb):
                 continue
             s = length - lim
             cx = (dx / length) * s
@@ -59,9 +114,7 @@ def limit_stretch(x, nw, exists, limit, limit_sq_lo, pinned):
                 x[0, p] += cx
                 x[1, p] += cy
                 x[2, p] += cz
-
-
-def stretch_limits(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(limit, limit_sq_lo) arrays for `limit_stretch` from the rest lengths (6, N)."""
-    limit = STRETCH_LIMIT * rest
-    return limit, limit * limit * (1.0 - 1e-9)
+            if not pa:
+                _mark_after(p, p, d, offsets, exist_bits, mask)
+            if not pb:
+                _mark_after(q, p, d, offsets, exist_bits, mask)

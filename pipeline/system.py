@@ -13,7 +13,8 @@ import numpy as np
 from numba import njit
 
 from .colliders import pack_colliders
-from .constraints import stretch_limits
+from .constraints import candidate_mask, existence_bits, stretch_limits
+from .forces import direction_offsets, gather_order, spring_force_buffer
 from .model import ClothModel
 from .scene import Scene
 from .self_collision import SelfCollisionScratch
@@ -28,6 +29,9 @@ class System(NamedTuple):
     x0: np.ndarray  # (3, N)
     pinned: np.ndarray  # (N,) uint8
     exists: np.ndarray  # (6, N) bool
+    exist_bits: np.ndarray  # (N + pad,) uint8, bit d = spring (d, p) exists
+    offsets: np.ndarray  # (6,) neighbour index offset per direction
+    gather_order: np.ndarray  # (6,) see forces.gather_order
     rest: np.ndarray  # (6, N)
     stiffness: np.ndarray  # (6,)
     limit: np.ndarray  # (6, N) 1.1 * rest
@@ -41,6 +45,8 @@ class System(NamedTuple):
     collider_params: np.ndarray
     self_collision: bool
     scratch: tuple  # SelfCollisionScratch.as_tuple()
+    spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
+    mask: np.ndarray  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
 
 
@@ -58,6 +64,9 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         x0=model.x0,
         pinned=model.pinned,
         exists=model.exists,
+        exist_bits=existence_bits(model.exists),
+        offsets=direction_offsets(model.nw),
+        gather_order=gather_order(model.nw),
         rest=model.rest,
         stiffness=model.stiffness,
         limit=limit,
@@ -71,6 +80,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         collider_params=params,
         self_collision=scene.self_collision,
         scratch=SelfCollisionScratch(model.n).as_tuple(),
+        spring_force=spring_force_buffer(model.n, model.nw),
+        mask=candidate_mask(model.n),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision),
     )
 
@@ -89,30 +100,38 @@ GUARD_FACTOR = 2.0
 
 
 @njit(cache=True, nogil=True)
-def energy_guard(x, v_sq_sum, system):
-    """Kinetic-energy bound of the guard: returns (kinetic energy, bound) in joules.
+def motion_summary(x, previous, system):
+    """(all finite, sum over points of |x - previous|^2, sum over points of the drop along g
+    since t = 0) for the guard; `previous` is the state one step earlier."""
+    g = system.gravity
+    g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+    x0 = system.x0
+    finite = True
+    moved_sq = drop = 0.0
+    for p in range(x.shape[1]):
+        for a in range(3):
+            v = x[a, p] - previous[a, p]
+            moved_sq += v * v
+            drop += (x[a, p] - x0[a, p]) * g[a]
+    finite = np.isfinite(moved_sq) and np.isfinite(drop)
+    return finite, moved_sq, drop / g_norm if g_norm > 0.0 else 0.0
 
-    No physical run gains more kinetic energy than gravity has done work on it: with the
-    springs starting at rest length, colliders fixed and damping only removing energy,
+
+@njit(cache=True, nogil=True)
+def energy_guard(v_sq_sum, drop, system):
+    """Kinetic-energy bound of the divergence guard: returns (kinetic energy, bound) in J.
+
+    No physical run gains more kinetic energy than gravity has done work on it: the springs
+    start at rest length, colliders are fixed and damping only removes energy, so
         KE(t) <= M |g| * max(0, drop of the centre of mass along g since t = 0).
     The guard allows GUARD_FACTOR times that (velocities are finite-difference estimates)
     plus N * m * slack_speed**2 / 2 for collision and constraint pushes. `v_sq_sum` is the
-    sum over free points of |v|^2.
+    sum of |v|^2 over the points, `drop` the sum of their drops (N times the centre's).
     """
     g = system.gravity
     g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-    drop = 0.0
-    if g_norm > 0.0:
-        x0 = system.x0
-        for p in range(x.shape[1]):
-            drop += (
-                (x[0, p] - x0[0, p]) * g[0]
-                + (x[1, p] - x0[1, p]) * g[1]
-                + (x[2, p] - x0[2, p]) * g[2]
-            )
-        drop /= g_norm  # summed over points: N * (drop of the centre of mass)
     m = system.mass
-    n = x.shape[1]
+    n = system.x0.shape[1]
     kinetic = 0.5 * m * v_sq_sum
     bound = GUARD_FACTOR * m * g_norm * max(drop, 0.0) + 0.5 * n * m * system.slack_speed**2
     return kinetic, bound

@@ -6,63 +6,72 @@ State: positions x and last positions x_last, both (3, N).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from ..colliders import collide_all
+from ..colliders import collide_all, collide_point
 from ..constraints import limit_stretch
-from ..forces import spring_forces
+from ..forces import CHUNKS, _chunk, compute_spring_forces, gathered_force
 from ..self_collision import self_collide
-from ..system import System, energy_guard
+from ..system import System, energy_guard, motion_summary
 
 NAME = "verlet"
 
 
 class State:
-    """Positions and last positions, (3, N) each, plus the force buffer."""
+    """Positions and last positions, (3, N) each."""
 
     def __init__(self, system: System) -> None:
         self.x = system.x0.copy()
         self.last = system.x0.copy()
-        self.force = np.zeros_like(system.x0)
 
     def velocity(self, system: System) -> np.ndarray:
         return (self.x - self.last) / system.dt
 
     def advance(self, system: System, steps: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.last, self.force, steps)
+        return advance(system, self.x, self.last, steps)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _forces_and_update(x, last, pinned, spring_force, offsets, order, weight, mass, keep, dt2,
+                       kinds, params):
+    """Gather forces and take the Verlet step for every free point, then apply the colliders
+    `kinds`/`params` to it (pass empty ones when a self-collision pass must come between)."""
+    n = x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            if pinned[p]:
+                continue
+            for a in range(3):
+                force = gathered_force(p, a, weight[a], spring_force, offsets, order)
+                xa = x[a, p]
+                x[a, p] = xa + keep * (xa - last[a, p]) + (force / mass) * dt2
+                last[a, p] = xa
+            x[0, p], x[1, p], x[2, p] = collide_point(
+                kinds, params, x[0, p], x[1, p], x[2, p], last[0, p], last[1, p], last[2, p])
 
 
 @njit(cache=True, nogil=True)
-def advance(system, x, last, force, steps):
+def advance(s, x, last, steps):
     """Run `steps` steps. Returns (steps done, kinetic energy, bound); fewer steps than asked
-    means the energy guard tripped after the last one (see system.energy_guard)."""
-    s = system
+    means the divergence guard tripped after the last one (see system.energy_guard)."""
     keep = 1.0 - s.damping
     dt2 = s.dt * s.dt
+    weight = s.mass * s.gravity
+    # colliders go with the update unless self-collision must come between
+    fused_kinds = s.collider_kinds[:0] if s.self_collision else s.collider_kinds
     kinetic = bound = 0.0
     for step in range(steps):
-        spring_forces(x, s.nw, s.exists, s.rest, s.stiffness, s.mass, s.gravity, force)
-        for p in range(x.shape[1]):
-            if s.pinned[p]:
-                continue
-            for a in range(3):
-                xa = x[a, p]
-                x[a, p] = xa + keep * (xa - last[a, p]) + (force[a, p] / s.mass) * dt2
-                last[a, p] = xa
+        compute_spring_forces(x, s.offsets, s.exists, s.rest, s.stiffness, s.spring_force)
+        _forces_and_update(x, last, s.pinned, s.spring_force, s.offsets, s.gather_order,
+                           weight, s.mass, keep, dt2, fused_kinds, s.collider_params)
         if s.self_collision:
             self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
                          s.steps_per_frame, s.scratch)
-        if s.collider_kinds.shape[0] > 0:
             collide_all(x, last, s.pinned, s.collider_kinds, s.collider_params)
-        limit_stretch(x, s.nw, s.exists, s.limit, s.limit_sq_lo, s.pinned)
-        v_sq = 0.0
-        finite = True
-        for p in range(x.shape[1]):
-            for a in range(3):
-                v = x[a, p] - last[a, p]
-                v_sq += v * v
-            finite &= np.isfinite(x[0, p]) and np.isfinite(x[1, p]) and np.isfinite(x[2, p])
-        kinetic, bound = energy_guard(x, v_sq / dt2, s)
+        limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+        finite, v_sq, drop = motion_summary(x, last, s)
+        kinetic, bound = energy_guard(v_sq / dt2, drop, s)
         if not finite or not kinetic <= bound:
             return step + 1, kinetic, bound
     return steps, kinetic, bound

@@ -1,0 +1,698 @@
+"""Scene description: typed, validated, with every default filled in.
+
+`load_scene` (below) turns a JSON file or dict into a `Scene`. The dataclasses here are
+the only shape the rest of the pipeline sees; nothing downstream reads raw JSON.
+
+Loading goes: read and parse the JSON (duplicate keys and non-finite numbers are
+rejected) -> apply command-line overrides ("dotted.key=value") to the raw dict ->
+validate with `jsonschema` against `scene_schema.json` (packaged next to this module;
+the integrator and shader enums are injected from `INTEGRATORS` and `SHADERS`) ->
+semantic checks the schema cannot express -> build the frozen dataclasses.
+Every failure is a `SceneError` whose message is one line starting with the file name.
+The reference of every key is docs/scene-format.md.
+
+This module must stay light: it imports no numba/numpy (jsonschema is imported lazily).
+"""
+from __future__ import annotations
+
+import copy
+import difflib
+import functools
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane",
+    "Collider", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
+    "Scene", "load_scene", "apply_overrides", "scene_schema",
+]
+
+#: Known integrator names for `simulation.integrator` (the first is the default).
+#: The schema's enum is built from this tuple at load time: adding one is one edit here.
+INTEGRATORS: tuple[str, ...] = ("verlet",)
+
+#: Known shader names for `render.shader` (schema enum built from this tuple).
+SHADERS: tuple[str, ...] = (
+    "normal", "wireframe", "diffuse", "phong", "texture", "bump", "displacement", "mirror", "toon",
+)
+
+#: Shader constants that `render` may give; stored in `RenderSettings.params` when given.
+#: Values: float, or a tuple of 3 floats for the vec3 ones (I_a, k_d).
+RENDER_PARAMS: tuple[str, ...] = ("k_a", "I_a", "k_s", "p", "k_h", "k_n", "k_d")
+_VEC3_PARAMS = frozenset({"I_a", "k_d"})
+
+Vec3 = tuple[float, float, float]
+
+
+class SceneError(ValueError):
+    """Bad scene input. `str(err)` is the one-line message shown to the user."""
+
+
+@dataclass(frozen=True)
+class Cloth:
+    """The `cloth` block (docs/scene-format.md): a grid of point masses joined by springs."""
+
+    width: float
+    height: float
+    num_width_points: int
+    num_height_points: int
+    thickness: float
+    orientation: int  # 0 horizontal (y = 1 plane), 1 vertical (z ~ 0 plane)
+    damping: float  # percent
+    density: float
+    ks: float
+    enable_structural: bool = True
+    enable_shearing: bool = True
+    enable_bending: bool = True
+    pinned: tuple[tuple[int, int], ...] = ()  # (x_index, y_index) = (column j, row i)
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A `sphere` collider."""
+
+    origin: Vec3
+    radius: float
+    friction: float
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A `plane` collider."""
+
+    point: Vec3
+    normal: Vec3  # as written in the scene (not normalised)
+    friction: float
+
+
+Collider = Sphere | Plane
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """The `simulation` block, defaults filled in."""
+
+    frames_per_sec: float = 90.0
+    steps_per_frame: int = 30
+    gravity: Vec3 = (0.0, -9.8, 0.0)
+    integrator: str = "verlet"
+    seed: int = 0
+    self_collision: bool | str = "auto"  # True, False or "auto" (on for vertical cloth)
+
+
+@dataclass(frozen=True)
+class CameraSettings:
+    """The `camera` block (position and target required when the block is given)."""
+
+    position: Vec3
+    target: Vec3
+    up: Vec3 = (0.0, 1.0, 0.0)
+    vfov: float = 35.0  # degrees
+
+
+@dataclass(frozen=True)
+class LightSettings:
+    """The `light` block, defaults filled in."""
+
+    position: Vec3 = (0.5, 2.0, 2.0)
+    intensity: Vec3 = (3.0, 3.0, 3.0)
+
+
+@dataclass(frozen=True)
+class RenderSettings:
+    """The `render` block. Paths are absolute (resolved against the scene file's folder);
+    `params` holds only the shader constants the scene gives (floats or 3-tuples)."""
+
+    shader: str = "phong"
+    width: int = 512
+    height: int = 512
+    aa: int = 1
+    background: Vec3 = (0.2, 0.25, 0.3)
+    texture: Path | None = None  # None: the packaged default
+    height_map: Path | None = None
+    cubemap: Path | None = None  # folder with posx..negz images
+    # Shader constants overriding SPEC section 5 defaults: k_a, I_a, k_s, p, k_h, k_n, ...
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A whole validated scene, every default filled in."""
+
+    cloth: Cloth
+    colliders: tuple[Collider, ...] = ()  # in the order the scene lists them
+    simulation: SimulationSettings = SimulationSettings()
+    camera: CameraSettings | None = None  # None: SPEC section 4 default camera
+    light: LightSettings = LightSettings()
+    render: RenderSettings = RenderSettings()
+    source: Path | None = None  # the scene file, when loaded from one
+
+    @property
+    def self_collision(self) -> bool:
+        """The resolved self-collision switch: "auto" means on for vertical cloth only."""
+        sc = self.simulation.self_collision
+        return self.cloth.orientation == 1 if sc == "auto" else bool(sc)
+
+
+# --------------------------------------------------------------------------------------
+# Loading
+# --------------------------------------------------------------------------------------
+
+_TOP_KEYS = ("cloth", "sphere", "plane", "simulation", "camera", "light", "render")
+_COLLIDER_KEYS = ("sphere", "plane")
+_DICT_SOURCE = "<scene>"
+
+PathItem = str | int
+
+
+def load_scene(source: str | os.PathLike | dict, overrides: Sequence[str] = ()) -> Scene:
+    """Read, check and build a `Scene`.
+
+    `source` is a path to a JSON scene file, or an already-parsed dict (it is not
+    modified; messages then name the file "<scene>" and relative paths in `render`
+    are relative to the current directory). `overrides` are "dotted.key=value"
+    strings applied to the raw data before validation (see `apply_overrides`).
+
+    Raises `SceneError` with a one-line message
+    "<file>: <key path>: expected <what>, got <what was there>" on any bad input.
+    """
+    if isinstance(source, dict):
+        file = _DICT_SOURCE
+        data: Any = _copy_json(source)
+        base_dir = Path.cwd()
+        src_path = None
+    elif isinstance(source, (str, os.PathLike)):
+        file = os.fspath(source)
+        if isinstance(file, bytes):
+            file = os.fsdecode(file)
+        data = _read_json(file)
+        src_path = Path(os.path.abspath(file))
+        base_dir = src_path.parent
+    else:
+        raise SceneError(f"{_DICT_SOURCE}: expected a path to a JSON file or a dict, "
+                         f"got {type(source).__name__}")
+
+    if not isinstance(data, dict):
+        raise SceneError(f"{file}: expected a JSON object at top level, got {_show(data)}")
+
+    data, touched = _apply_overrides(data, overrides, file)
+
+    try:
+        _check_finite(data, [])
+        _validate_schema(data)
+        _check_semantics(data)
+    except _Problem as p:
+        raise SceneError(f"{file}: {p.text}{_blame(p.path, touched)}") from None
+
+    return _build(data, base_dir, src_path)
+
+
+def apply_overrides(data: dict, overrides: Sequence[str], file: str = _DICT_SOURCE) -> dict:
+    """Return a copy of the raw scene `data` with "dotted.key=value" overrides applied.
+
+    The value is parsed as JSON when possible (`500`, `false`, `[0,1,3]`, `"x"`), else
+    kept as a string (`render.shader=toon`). A number in the path indexes a list
+    (`sphere.1.radius=0.3`); index 0 also addresses a collider given as a single object.
+    Missing objects along the path are created (and then validated like the rest, so a
+    typo becomes an "unknown key" error). Raises `SceneError` for a malformed override.
+    """
+    return _apply_overrides(_copy_json(data), overrides, file)[0]
+
+
+@functools.lru_cache(maxsize=8)
+def _schema_and_validator(integrators: tuple[str, ...], shaders: tuple[str, ...]):
+    import importlib.resources
+
+    import jsonschema
+
+    if __package__:
+        text = importlib.resources.files(__package__).joinpath(
+            "scene_schema.json").read_text(encoding="utf-8")
+    else:  # this file loaded on its own, not as part of the package
+        text = Path(__file__).with_name("scene_schema.json").read_text(encoding="utf-8")
+    schema = json.loads(text)
+    defs = schema["$defs"]
+    defs["simulation"]["properties"]["integrator"]["enum"] = list(integrators)
+    defs["render"]["properties"]["shader"]["enum"] = list(shaders)
+    jsonschema.Draft202012Validator.check_schema(schema)
+    return schema, jsonschema.Draft202012Validator(schema)
+
+
+def scene_schema() -> dict:
+    """The scene JSON Schema (draft 2020-12) as used by `load_scene`, enums filled in."""
+    return copy.deepcopy(_schema_and_validator(INTEGRATORS, SHADERS)[0])
+
+
+# --- reading ------------------------------------------------------------------------------
+
+def _read_json(file: str) -> Any:
+    try:
+        with open(file, "rb") as fh:
+            raw = fh.read()
+    except OSError as e:
+        raise SceneError(f"{file}: cannot read: {e.strerror or e}") from None
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise SceneError(f"{file}: not valid JSON: not UTF-8 text "
+                         f"(byte {e.start}: {e.reason})") from None
+    dups: dict[int, str] = {}
+
+    def pairs_hook(pairs):
+        d = {}
+        for k, v in pairs:
+            if k in d and id(d) not in dups:
+                dups[id(d)] = k
+            d[k] = v
+        return d
+
+    try:
+        data = json.loads(text, object_pairs_hook=pairs_hook)
+    except json.JSONDecodeError as e:
+        raise SceneError(f"{file}: not valid JSON: line {e.lineno} column {e.colno}: {e.msg}") from None
+    except RecursionError:
+        raise SceneError(f"{file}: not valid JSON: nested too deeply") from None
+    if dups:
+        where = _find_dict(data, dups, [])
+        if where is not None:
+            path, key = where
+            raise SceneError(f"{file}: {_fmt_path(path + [key])}: duplicate key "
+                             f"(given more than once in the same object)")
+    return data
+
+
+def _find_dict(node: Any, ids: dict[int, str], path: list) -> tuple[list, str] | None:
+    if isinstance(node, dict):
+        if id(node) in ids:
+            return path, ids[id(node)]
+        items = node.items()
+    elif isinstance(node, list):
+        items = enumerate(node)
+    else:
+        return None
+    for k, v in items:
+        found = _find_dict(v, ids, path + [k])
+        if found is not None:
+            return found
+    return None
+
+
+def _copy_json(node: Any) -> Any:
+    """Deep copy of JSON-like data; tuples become lists (handy for dicts built in Python)."""
+    if isinstance(node, dict):
+        return {k: _copy_json(v) for k, v in node.items()}
+    if isinstance(node, (list, tuple)):
+        return [_copy_json(v) for v in node]
+    return node
+
+
+# --- overrides ----------------------------------------------------------------------------
+
+def _apply_overrides(data: dict, overrides: Sequence[str], file: str
+                     ) -> tuple[dict, list[tuple[list[PathItem], str]]]:
+    """Apply overrides in place on `data` (already a private copy). Returns the data and
+    the (path, override) pairs, so later errors can name the override responsible."""
+    if isinstance(overrides, str):  # a lone string would otherwise be split into chars
+        overrides = [overrides]
+    touched: list[tuple[list[PathItem], str]] = []
+    for ov in overrides:
+        def bad(why: str) -> SceneError:
+            return SceneError(f"{file}: override {ov!r}: {why}")
+
+        if not isinstance(ov, str):
+            raise SceneError(f"{file}: override {ov!r}: expected a string 'dotted.key=value'")
+        if "=" not in ov:
+            raise bad("expected 'dotted.key=value', got no '='")
+        key, _, text = ov.partition("=")
+        parts = [p.strip() for p in key.strip().split(".")]
+        if not key.strip() or any(not p for p in parts):
+            raise bad(f"expected 'dotted.key=value', got an empty key in {key.strip()!r}")
+        try:
+            value = json.loads(text)
+        except (ValueError, RecursionError):
+            value = text
+        node: Any = data
+        path: list[PathItem] = []
+        for n, part in enumerate(parts):
+            last = n == len(parts) - 1
+            if isinstance(node, dict):
+                # a collider given as one object is addressed like a list of one
+                if (part.isdigit() and len(path) == 1 and path[0] in _COLLIDER_KEYS
+                        and part not in node):
+                    data[path[0]] = node = [node]
+                else:
+                    if last:
+                        node[part] = value
+                    elif not isinstance(node.get(part), (dict, list)):
+                        if part in node:
+                            raise bad(f"{_fmt_path(path + [part])} is "
+                                      f"{_kind(node[part])}, not an object or a list")
+                        node[part] = {}
+                        touched.append((path + [part], ov))  # errors inside it are the override's
+                    path.append(part)
+                    node = node.get(part) if not last else None
+                    continue
+            if isinstance(node, list):
+                if not part.isdigit():
+                    raise bad(f"{_fmt_path(path)} is a list: expected a number index, got {part!r}")
+                i = int(part)
+                if i >= len(node):
+                    raise bad(f"{_fmt_path(path + [i])}: index out of range "
+                              f"({_fmt_path(path)} has {len(node)} item{'s' * (len(node) != 1)})")
+                path.append(i)
+                if last:
+                    node[i] = value
+                elif isinstance(node[i], (dict, list)):
+                    node = node[i]
+                else:
+                    raise bad(f"{_fmt_path(path)} is {_kind(node[i])}, not an object or a list")
+            else:
+                raise bad(f"{_fmt_path(path)} is {_kind(node)}, not an object or a list")
+        touched.append((path, ov))
+    return data, touched
+
+
+def _blame(path: list[PathItem] | None, touched: list[tuple[list[PathItem], str]]) -> str:
+    if path is None:
+        return ""
+    for opath, ov in reversed(touched):
+        n = min(len(opath), len(path))
+        if list(opath[:n]) == list(path[:n]):
+            return f" (from override {ov!r})"
+    return ""
+
+
+# --- checks -------------------------------------------------------------------------------
+
+class _Problem(Exception):
+    """A check failure: `text` is the message after "<file>: ", `path` the key path named."""
+
+    def __init__(self, path: list[PathItem] | None, text: str):
+        super().__init__(text)
+        self.path = path
+        self.text = text
+
+
+def _check_finite(node: Any, path: list[PathItem]) -> None:
+    if isinstance(node, float) and not math.isfinite(node):
+        raise _Problem(path, f"{_fmt_path(path)}: expected a finite number, got {_show(node)}")
+    if isinstance(node, dict):
+        for k, v in node.items():
+            _check_finite(v, path + [k])
+    elif isinstance(node, list):
+        for i, v in enumerate(node):
+            _check_finite(v, path + [i])
+
+
+def _validate_schema(data: dict) -> None:
+    schema, validator = _schema_and_validator(INTEGRATORS, SHADERS)
+    err = _pick(validator.iter_errors(data), schema)
+    if err is not None:
+        raise _translate(err, schema)
+
+
+def _pick(errors, root: dict):
+    """The most useful error, as `jsonschema.exceptions.best_match` picks it (the shallowest
+    first), with two refinements: an unknown key beats a missing one in the same object
+    (a typo causes both, and the unknown-key message carries the "did you mean" hint), and
+    for a `oneOf` (collider: object or list) we descend into the branch whose type matches
+    the value, instead of giving up when the branches' errors tie."""
+    from jsonschema.exceptions import best_match, by_relevance
+
+    key = by_relevance(strong=frozenset({"additionalProperties"}))
+    errors = list(errors)
+    best = max(errors, key=key, default=None)
+    if best is None or best.validator not in ("oneOf", "anyOf"):
+        return best_match(errors, key=key)
+    # best_match's own descent into a oneOf gives up (or picks the wrong branch) on ties
+    while best is not None and best.validator in ("oneOf", "anyOf") and best.context:
+        kind = "object" if isinstance(best.instance, dict) else (
+            "array" if isinstance(best.instance, list) else None)
+        branches = [i for i, sub in enumerate(best.validator_value)
+                    if _resolve(sub, root).get("type") == kind]
+        sub_errors = [e for e in best.context
+                      if e.relative_schema_path and e.relative_schema_path[0] in branches]
+        if not sub_errors:
+            break
+        best = max(sub_errors, key=key)
+    return best
+
+
+def _translate(err, root: dict) -> _Problem:
+    """Turn one jsonschema ValidationError into a one-line `_Problem`."""
+    path = list(err.absolute_path)
+    sch = err.schema if isinstance(err.schema, dict) else {}
+    inst = err.instance
+    kw = err.validator
+    if kw == "additionalProperties" and isinstance(inst, dict):
+        allowed = list(sch.get("properties", {}))
+        unknown = [k for k in inst if k not in allowed]
+        key = unknown[0] if unknown else "?"
+        hint = difflib.get_close_matches(str(key), allowed, n=1, cutoff=0.6)
+        extra = f"did you mean {hint[0]!r}? " if hint else ""
+        where = "at top level" if not path else f"in {_fmt_path(path)}"
+        return _Problem(path + [key], f"unknown key {key!r} {where} "
+                                      f"({extra}expected one of: {', '.join(allowed)})")
+    if kw == "required" and isinstance(inst, dict):
+        missing = next((k for k in err.validator_value if k not in inst), "?")
+        sub = _resolve(sch.get("properties", {}).get(missing, {}), root)
+        what = _describe(sub, root)
+        where = _fmt_path(path + [missing])
+        return _Problem(path + [missing], f"{where}: missing required key"
+                                          + (f" (expected {what})" if what else ""))
+    what = _describe(sch, root)
+    if not what:
+        what = err.message.splitlines()[0][:200]
+        return _Problem(path, f"{_fmt_path(path)}: {what}" if path else what)
+    if not path:
+        return _Problem(path, f"expected {what}, got {_show(inst)}")
+    return _Problem(path, f"{_fmt_path(path)}: expected {what}, got {_show(inst)}")
+
+
+def _resolve(sch: dict, root: dict) -> dict:
+    seen = 0
+    while isinstance(sch, dict) and "$ref" in sch and seen < 10:
+        ref = sch["$ref"]
+        if not ref.startswith("#/"):
+            break
+        target: Any = root
+        for part in ref[2:].split("/"):
+            target = target[part]
+        merged = dict(target)
+        merged.update({k: v for k, v in sch.items() if k != "$ref"})
+        if "x-expected" in target:  # the referenced definition knows best what it is
+            merged["x-expected"] = target["x-expected"]
+        sch = merged
+        seen += 1
+    return sch
+
+
+def _describe(sch: dict, root: dict) -> str:
+    """'a number > 0', 'an integer in [1, 8]', 'one of "a", "b"', ... from a subschema."""
+    sch = _resolve(sch, root)
+    if "x-expected" in sch:
+        return sch["x-expected"]
+    if "enum" in sch:
+        vals = [json.dumps(v) for v in sch["enum"]]
+        return "one of " + ", ".join(vals)
+    t = sch.get("type")
+    if t in ("number", "integer"):
+        base = "a number" if t == "number" else "an integer"
+        lo = ("[", sch["minimum"]) if "minimum" in sch else (
+            ("(", sch["exclusiveMinimum"]) if "exclusiveMinimum" in sch else None)
+        hi = ("]", sch["maximum"]) if "maximum" in sch else (
+            (")", sch["exclusiveMaximum"]) if "exclusiveMaximum" in sch else None)
+        if lo and hi:
+            return f"{base} in {lo[0]}{_num(lo[1])}, {_num(hi[1])}{hi[0]}"
+        if lo:
+            return f"{base} {'>=' if lo[0] == '[' else '>'} {_num(lo[1])}"
+        if hi:
+            return f"{base} {'<=' if hi[0] == ']' else '<'} {_num(hi[1])}"
+        return base
+    if t == "boolean":
+        return "true or false"
+    if t == "string":
+        return "a non-empty string" if sch.get("minLength") else "a string"
+    if t == "object":
+        return "an object"
+    if t == "array":
+        return "a list"
+    return ""
+
+
+def _check_semantics(data: dict) -> None:
+    """The checks JSON Schema cannot express. `data` already passed the schema."""
+    cloth = data["cloth"]
+    nw, nh = cloth["num_width_points"], cloth["num_height_points"]
+    for i, pin in enumerate(cloth.get("pinned", ())):
+        x, y = pin
+        path: list[PathItem] = ["cloth", "pinned", i]
+        if x >= nw:
+            raise _Problem(path, f"{_fmt_path(path)}: {_show(pin)} is out of range: "
+                                 f"x_index must be < num_width_points ({_num(nw)})")
+        if y >= nh:
+            raise _Problem(path, f"{_fmt_path(path)}: {_show(pin)} is out of range: "
+                                 f"y_index must be < num_height_points ({_num(nh)})")
+    if "plane" in data:
+        planes = data["plane"]
+        many = isinstance(planes, list)
+        for i, pl in enumerate(planes if many else [planes]):
+            path = ["plane", i, "normal"] if many else ["plane", "normal"]
+            if _norm(pl["normal"]) == 0.0:
+                raise _Problem(path, f"{_fmt_path(path)}: expected a non-zero vector, "
+                                     f"got {_show(pl['normal'])}")
+    cam = data.get("camera")
+    if cam is not None:
+        pos, tgt = cam["position"], cam["target"]
+        view = [float(t) - float(p) for p, t in zip(pos, tgt)]
+        if _norm(view) == 0.0:
+            raise _Problem(["camera", "target"], f"camera.target: expected a point different "
+                                                 f"from camera.position, got {_show(tgt)} (the same)")
+        up = cam.get("up", [0, 1, 0])
+        if _norm(up) == 0.0:
+            raise _Problem(["camera", "up"], f"camera.up: expected a non-zero vector, got {_show(up)}")
+        u = [float(c) for c in up]
+        cross = [u[1] * view[2] - u[2] * view[1], u[2] * view[0] - u[0] * view[2],
+                 u[0] * view[1] - u[1] * view[0]]
+        if _norm(cross) <= 1e-9 * _norm(u) * _norm(view):
+            where = "camera.up" if "up" in cam else "camera.up (default [0, 1, 0])"
+            raise _Problem(["camera", "up"], f"{where}: expected a direction not parallel to "
+                                             f"the view direction (target - position = "
+                                             f"{_show(view)}), got {_show(up)}")
+
+
+# --- building -----------------------------------------------------------------------------
+
+def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
+    c = data["cloth"]
+    cloth = Cloth(
+        width=float(c["width"]), height=float(c["height"]),
+        num_width_points=int(c["num_width_points"]), num_height_points=int(c["num_height_points"]),
+        thickness=float(c["thickness"]), orientation=int(c["orientation"]),
+        damping=float(c["damping"]), density=float(c["density"]), ks=float(c["ks"]),
+        enable_structural=bool(c["enable_structural"]),
+        enable_shearing=bool(c["enable_shearing"]),
+        enable_bending=bool(c["enable_bending"]),
+        pinned=tuple((int(x), int(y)) for x, y in c.get("pinned", ())),
+    )
+    colliders: list[Collider] = []
+    for key, value in data.items():  # file order: the first-written key acts first
+        if key not in _COLLIDER_KEYS:
+            continue
+        for obj in value if isinstance(value, list) else [value]:
+            if key == "sphere":
+                colliders.append(Sphere(origin=_vec3(obj["origin"]), radius=float(obj["radius"]),
+                                        friction=float(obj["friction"])))
+            else:
+                colliders.append(Plane(point=_vec3(obj["point"]), normal=_vec3(obj["normal"]),
+                                       friction=float(obj["friction"])))
+
+    s = data.get("simulation", {})
+    d = SimulationSettings()
+    simulation = SimulationSettings(
+        frames_per_sec=float(s.get("frames_per_sec", d.frames_per_sec)),
+        steps_per_frame=int(s.get("steps_per_frame", d.steps_per_frame)),
+        gravity=_vec3(s.get("gravity", d.gravity)),
+        integrator=str(s.get("integrator", d.integrator)),
+        seed=int(s.get("seed", d.seed)),
+        self_collision=s.get("self_collision", d.self_collision),
+    )
+
+    camera = None
+    if "camera" in data:
+        cam = data["camera"]
+        camera = CameraSettings(position=_vec3(cam["position"]), target=_vec3(cam["target"]),
+                                up=_vec3(cam.get("up", CameraSettings.up)),
+                                vfov=float(cam.get("vfov", CameraSettings.vfov)))
+
+    li = data.get("light", {})
+    light = LightSettings(position=_vec3(li.get("position", LightSettings.position)),
+                          intensity=_vec3(li.get("intensity", LightSettings.intensity)))
+
+    r = data.get("render", {})
+    rd = RenderSettings()
+
+    def path_of(key: str) -> Path | None:
+        if key not in r:
+            return None
+        return Path(os.path.abspath(base_dir / Path(r[key]).expanduser()))
+
+    params: dict[str, Any] = {}
+    for key in RENDER_PARAMS:
+        if key in r:
+            params[key] = _vec3(r[key]) if key in _VEC3_PARAMS else float(r[key])
+    render = RenderSettings(
+        shader=str(r.get("shader", rd.shader)), width=int(r.get("width", rd.width)),
+        height=int(r.get("height", rd.height)), aa=int(r.get("aa", rd.aa)),
+        background=_vec3(r.get("background", rd.background)),
+        texture=path_of("texture"), height_map=path_of("height_map"), cubemap=path_of("cubemap"),
+        params=params,
+    )
+    return Scene(cloth=cloth, colliders=tuple(colliders), simulation=simulation, camera=camera,
+                 light=light, render=render, source=src_path)
+
+
+# --- small helpers ------------------------------------------------------------------------
+
+def _vec3(v) -> Vec3:
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _norm(v) -> float:
+    return math.sqrt(sum(float(c) * float(c) for c in v))
+
+
+def _num(x) -> str:
+    if isinstance(x, float) and x.is_integer() and abs(x) < 1e15:
+        return str(int(x))
+    return json.dumps(x)
+
+
+def _fmt_path(path: Sequence[PathItem]) -> str:
+    """['cloth', 'pinned', 2] -> 'cloth.pinned[2]'; [] -> 'top level'."""
+    out = ""
+    for p in path:
+        if isinstance(p, int):
+            out += f"[{p}]"
+        else:
+            out += f".{p}" if out else str(p)
+    return out or "top level"
+
+
+def _kind(v: Any) -> str:
+    if isinstance(v, bool):
+        return "a boolean"
+    if isinstance(v, (int, float)):
+        return "a number"
+    if isinstance(v, str):
+        return "a string"
+    if v is None:
+        return "null"
+    return type(v).__name__
+
+
+def _show(v: Any, limit: int = 60) -> str:
+    """A short, JSON-spelled rendering of a value for messages (true, NaN, "x", [1, 2])."""
+    if isinstance(v, dict):
+        return "an object" if v else "an empty object {}"
+    if isinstance(v, float) and not math.isfinite(v):
+        return "NaN" if math.isnan(v) else ("Infinity" if v > 0 else "-Infinity")
+    if isinstance(v, list):
+        try:
+            s = "[" + ", ".join(_show(x, limit) for x in v) + "]" if len(v) <= limit else ""
+        except RecursionError:
+            s = ""
+        if s and len(s) <= limit and not any(isinstance(x, (dict, list)) and x for x in v):
+            return s
+        return f"a list of {len(v)} item{'s' * (len(v) != 1)}"
+    if isinstance(v, float) and v.is_integer() and abs(v) < 1e15:
+        return str(int(v))
+    if isinstance(v, (bool, int, float, str)) or v is None:
+        s = json.dumps(v)
+        return s if len(s) <= limit else s[:limit - 4] + '..."'
+    return f"a {type(v).__name__}"
