@@ -1,0 +1,164 @@
+"""Simulator benchmark: our numba kernels beside the C++ reference, in one run.
+
+    python benchmarks/sim.py            # all cases
+    python benchmarks/sim.py --quick    # fewer repeats
+
+Per case: numba compile time (first call in a process with an empty cache, minus a warm call),
+steps per second and seconds per simulated second (best of several runs, warm), the C++
+reference's seconds on the same case and the time ratio ours / C++. Then cold and warm start
+to the first frame (fresh processes) and the peak resident memory of `simulate` on 200x200
+for 90 frames against the size of the returned array.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+REFERENCE = ROOT.parent / "shared" / "reference" / "cs184_ref"
+CASES = [  # (label, scene file, grid size or None for the file's own)
+    ("pinned2 50x50", "pinned2.json", None),
+    ("pinned2 100x100", "pinned2.json", 100),
+    ("pinned2 200x200", "pinned2.json", 200),
+    ("sphere 50x50", "sphere.json", None),
+    ("selfCollision 50x50", "selfCollision.json", None),
+]
+
+
+def scene_dict(file: str, size: int | None) -> dict:
+    raw = json.loads((ROOT / "scenes" / file).read_text())
+    if size is not None:
+        c = raw["cloth"]
+        old = c["num_width_points"] - 1
+        c["num_width_points"] = c["num_height_points"] = size
+        c["pinned"] = [[x * (size - 1) // old, y * (size - 1) // old] for x, y in c.get("pinned", [])]
+    return raw
+
+
+def time_ours(raw: dict, repeats: int) -> tuple[float, int]:
+    """Best wall time of one simulated second (frames_per_sec frames), warm."""
+    import numpy as np  # noqa: F401  (imported before timing)
+
+    from pipeline import Simulation, load_scene
+
+    scene = load_scene(raw)
+    frames = int(round(scene.simulation.frames_per_sec))
+    sim = Simulation(scene)
+    sim.advance(1)  # compile / load from cache
+    best = float("inf")
+    for _ in range(repeats):
+        sim = Simulation(scene)
+        t0 = time.perf_counter()
+        sim.advance(frames)
+        best = min(best, time.perf_counter() - t0)
+    return best, frames * scene.simulation.steps_per_frame
+
+
+def time_reference(raw: dict, repeats: int) -> float | None:
+    if not REFERENCE.is_dir():
+        return None
+    sys.path.insert(0, str(REFERENCE))
+    import cs184_ref
+
+    from pipeline import Simulation
+
+    init = Simulation(raw).model.initial_positions  # same start (vertical cloth jitter)
+    frames = int(raw.get("simulation", {}).get("frames_per_sec", 90))
+    best = float("inf")
+    for _ in range(repeats):
+        _, info = cs184_ref.simulate(raw, frames, init_positions=init, last_only=True,
+                                     timing=True, return_info=True)
+        # the binary's own timer covers the stepping only, like ours
+        fields = info["stderr"].split()
+        best = min(best, float(fields[fields.index("sim_seconds") + 1]))
+    return best
+
+
+def compile_seconds(file: str) -> float:
+    """First frame in a fresh process with an empty numba cache, minus a warm frame."""
+    code = (
+        "import time, json, pipeline\n"
+        f"raw = json.load(open({str(ROOT / 'scenes' / file)!r}))\n"
+        "t = time.perf_counter(); s = pipeline.Simulation(raw); s.advance(1)\n"
+        "cold = time.perf_counter() - t\n"
+        "t = time.perf_counter(); s = pipeline.Simulation(raw); s.advance(1)\n"
+        "print(cold - (time.perf_counter() - t))\n"
+    )
+    with tempfile.TemporaryDirectory() as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+        out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                             text=True, check=True)
+    return float(out.stdout.strip())
+
+
+def start_to_first_frame(cache: str) -> float:
+    code = "import pipeline; pipeline.simulate('scenes/pinned2.json', 1)"
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    t0 = time.perf_counter()
+    subprocess.run([sys.executable, "-c", code], env=env, cwd=ROOT, check=True)
+    return time.perf_counter() - t0
+
+
+def peak_memory_200() -> tuple[float, float, float]:
+    """(peak RSS before, peak RSS after simulate(200x200, 90 frames), array MB)."""
+    code = (
+        "import resource, json, pipeline\n"
+        "raw = json.loads(open('scenes/pinned2.json').read())\n"
+        "pipeline.simulate(raw, 1)\n"  # compile, import everything
+        "before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+        "raw['cloth'].update(num_width_points=200, num_height_points=200,\n"
+        "                    pinned=[[0, 0], [199, 0]])\n"
+        "out = pipeline.simulate(raw, 90)\n"
+        "after = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024\n"
+        "print(before, after, out.nbytes / 2**20)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         check=True)
+    before, after, array = map(float, out.stdout.split())
+    return before, after, array
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="1 repeat instead of 3")
+    args = ap.parse_args()
+    repeats = 1 if args.quick else 3
+    import numba
+
+    print(f"numba {numba.__version__}, threads {numba.config.NUMBA_NUM_THREADS}, "
+          f"cores {os.cpu_count()}")
+    print(f"{'case':22s} {'compile s':>9s} {'steps/s':>9s} {'s/sim s':>8s} {'C++ s':>7s} "
+          f"{'ratio':>6s} {'us/step':>8s}")
+    per_step = {}
+    for label, file, size in CASES:
+        raw = scene_dict(file, size)
+        comp = compile_seconds(file) if size is None else float("nan")
+        ours, steps = time_ours(raw, repeats)
+        ref = time_reference(raw, repeats)
+        per_step[label] = ours / steps
+        ratio = f"{ours / ref:6.2f}" if ref else "   n/a"
+        ref_s = f"{ref:7.3f}" if ref else "    n/a"
+        print(f"{label:22s} {comp:9.2f} {steps / ours:9.0f} {ours:8.3f} {ref_s} {ratio} "
+              f"{ours / steps * 1e6:8.1f}")
+    base = per_step["pinned2 50x50"]
+    print(f"per step, 200x200 / 50x50: {per_step['pinned2 200x200'] / base:.1f}x "
+          f"(16x the points)")
+    print(f"per step, selfCollision / pinned2 (50x50): "
+          f"{per_step['selfCollision 50x50'] / base:.2f}x")
+    with tempfile.TemporaryDirectory() as cache:
+        cold = start_to_first_frame(cache)
+        warm = start_to_first_frame(cache)
+    print(f"start to first frame (new process): cold {cold:.1f} s, warm {warm:.2f} s")
+    before, after, array = peak_memory_200()
+    print(f"simulate 200x200 x 90 frames: peak RSS {before:.0f} MB -> {after:.0f} MB "
+          f"(+{after - before:.0f} MB; the returned array is {array:.0f} MB)")
+
+
+if __name__ == "__main__":
+    main()

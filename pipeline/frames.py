@@ -1,0 +1,94 @@
+"""Frame assembly: scene + cloth positions -> meshes + camera -> image.
+
+    meshes = scene_meshes(scene, positions, model)   # cloth, then colliders in scene order
+    cam = default_camera(scene, model.initial_positions, 512, 512)
+    img = render_frame(scene, positions, model)      # (H, W, 3) uint8, defaults from scene.render
+
+`model` is the simulator's cloth model (pipeline.model.ClothModel): nw, nh, spring_a,
+spring_b, spring_enabled, initial_positions. The cloth mesh's `edges` (drawn by the
+wireframe shader) are the enabled springs. Mesh names: "cloth", "sphere_0", "plane_0", ...
+(numbered per kind, in scene order).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+import shading
+from shading import Camera
+
+from .scene import CameraSettings, Plane, Scene, Sphere
+
+
+def _edges(model) -> np.ndarray:
+    en = np.asarray(model.spring_enabled, dtype=bool)
+    a = np.asarray(model.spring_a, dtype=np.int32)[en]
+    b = np.asarray(model.spring_b, dtype=np.int32)[en]
+    return np.ascontiguousarray(np.stack([a, b], axis=1))
+
+
+def _cached_edges(model) -> np.ndarray:
+    # springs never change during a run: compute once per model object
+    e = getattr(model, "_render_edges", None)
+    if e is None:
+        e = _edges(model)
+        try:
+            object.__setattr__(model, "_render_edges", e)
+        except (AttributeError, TypeError):
+            pass
+    return e
+
+
+def scene_meshes(scene: Scene, positions, model) -> list:
+    """[cloth, colliders in scene order] as shading.Mesh objects."""
+    pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model))
+    meshes = [cloth]
+    counts = {}
+    for c in scene.colliders:
+        if isinstance(c, Sphere):
+            m = shading.sphere_mesh(c.origin, c.radius)
+        elif isinstance(c, Plane):
+            m = shading.plane_mesh(c.point, c.normal)
+        else:  # a collider kind the renderer does not know how to draw
+            continue
+        k = counts.get(m.name, 0)
+        counts[m.name] = k + 1
+        m.name = f"{m.name}_{k}"
+        meshes.append(m)
+    return meshes
+
+
+def default_camera(scene: Scene, initial_positions, width: int, height: int) -> Camera:
+    """The scene's camera, or the SPEC 4 default from the initial cloth positions."""
+    cs: CameraSettings | None = scene.camera
+    if cs is not None:
+        return Camera(tuple(cs.position), tuple(cs.target), tuple(cs.up), float(cs.vfov),
+                      width=width, height=height)
+    return Camera.default_for_cloth(initial_positions, scene.cloth.width, scene.cloth.height,
+                                    width=width, height=height)
+
+
+def render_params(scene: Scene, aa: int | None = None) -> dict:
+    """Renderer params from scene.render: shader constants, background, textures, aa."""
+    rs = scene.render
+    p = dict(rs.params)
+    p["background"] = tuple(rs.background)
+    p["aa"] = int(aa if aa is not None else rs.aa)
+    for key in ("texture", "height_map", "cubemap"):
+        v = getattr(rs, key)
+        if v is not None:
+            p[key] = v
+    return p
+
+
+def render_frame(scene: Scene, positions, model, shader: str | None = None,
+                 width: int | None = None, height: int | None = None,
+                 aa: int | None = None) -> np.ndarray:
+    """One frame as a new (H, W, 3) uint8 array; None arguments default to scene.render."""
+    rs = scene.render
+    w = int(width if width is not None else rs.width)
+    h = int(height if height is not None else rs.height)
+    cam = default_camera(scene, model.initial_positions, w, h)
+    meshes = scene_meshes(scene, positions, model)
+    return shading.render(meshes, cam, scene.light, shader or rs.shader,
+                          render_params(scene, aa))

@@ -1,0 +1,92 @@
+"""Shared numba helpers for fragment shaders: vector maths, two-sided normals,
+Blinn-Phong (SPEC 5) and bump-mapped normals. 3-vectors are tuples (no allocation)."""
+from __future__ import annotations
+
+import math
+
+from numba import njit
+
+from .textures import bilinear
+
+
+@njit(cache=True, inline="always")
+def dot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, inline="always")
+def cross(a, b):
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+@njit(cache=True, inline="always")
+def normalize(a):
+    n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+    if n > 0.0:
+        return (a[0] / n, a[1] / n, a[2] / n)
+    return a
+
+
+@njit(cache=True, inline="always")
+def sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+
+@njit(cache=True, inline="always")
+def scale(a, s):
+    return (a[0] * s, a[1] * s, a[2] * s)
+
+
+@njit(cache=True, inline="always")
+def vec3(prm, i):
+    """prm[i:i+3] as a tuple."""
+    return (prm[i], prm[i + 1], prm[i + 2])
+
+
+@njit(cache=True, inline="always")
+def two_sided(n0, v):
+    """SPEC 4: n = -n0 if n0.v < 0 else n0."""
+    if dot(n0, v) < 0.0:
+        return (-n0[0], -n0[1], -n0[2])
+    return n0
+
+
+@njit(cache=True)
+def light_terms(p, n, v, lp, li):
+    """(I / r^2 (rgb tuple), max(0, n.l), max(0, n.h)) for a point light at lp."""
+    d = sub(lp, p)
+    r2 = dot(d, d)
+    l = normalize(d)
+    h = normalize((l[0] + v[0], l[1] + v[1], l[2] + v[2]))
+    inv = 1.0 / r2 if r2 > 0.0 else 0.0
+    return (li[0] * inv, li[1] * inv, li[2] * inv), max(0.0, dot(n, l)), max(0.0, dot(n, h))
+
+
+@njit(cache=True)
+def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp):
+    """k_a I_a + k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p."""
+    e, ndl, ndh = light_terms(p, n, v, lp, li)
+    spec = ks * ndh ** pexp
+    return (ka * ia[0] + kd[0] * e[0] * ndl + spec * e[0],
+            ka * ia[1] + kd[1] * e[1] * ndl + spec * e[1],
+            ka * ia[2] + kd[2] * e[2] * ndl + spec * e[2])
+
+
+@njit(cache=True)
+def bump_normal(n0, t, v, uv, hmap, kh, kn):
+    """SPEC 5 bump: TBN from the unflipped n0 and t, height = red channel of hmap,
+    forward differences of one texel; the result gets the sign of the two-sided flip."""
+    hh = hmap.shape[0]
+    hw = hmap.shape[1]
+    h0 = bilinear(hmap, uv[0], uv[1], True)[0]
+    hu = bilinear(hmap, uv[0] + 1.0 / hw, uv[1], True)[0]
+    hv = bilinear(hmap, uv[0], uv[1] + 1.0 / hh, True)[0]
+    du = (hu - h0) * kh * kn
+    dv = (hv - h0) * kh * kn
+    b = cross(n0, t)
+    nd = normalize((-du * t[0] - dv * b[0] + n0[0],
+                    -du * t[1] - dv * b[1] + n0[1],
+                    -du * t[2] - dv * b[2] + n0[2]))
+    if dot(n0, v) < 0.0:
+        return (-nd[0], -nd[1], -nd[2])
+    return nd
