@@ -32,27 +32,34 @@ def existence_bits(exists: np.ndarray) -> np.ndarray:
     return bits
 
 
-def candidate_mask(n: int) -> np.ndarray:
-    return np.zeros(3 * n + 2, dtype=np.uint8)
+def candidate_mask(n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Scratch for `limit_stretch`: (mask (N + pad,) uint8, long (6, N) bool)."""
+    return np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, mask):
+def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch):
+    mask, long = scratch
     n = x.shape[1]
+    x0, x1, x2 = x[0], x[1], x[2]  # 1-D rows and plain bool stores: these loops vectorise
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        mask[lo:hi] = 0
         for d in range(6):
             off = offsets[d]
-            for p in range(max(lo, -off), hi):
+            lim_d, long_d = limit_sq_lo[d], long[d]
+            start = min(max(lo, -off), hi)
+            long_d[lo:start] = False
+            for p in range(start, hi):
                 q = p + off
-                dx = x[0, q] - x[0, p]
-                dy = x[1, q] - x[1, p]
-                dz = x[2, q] - x[2, p]
-                long = dx * dx + dy * dy + dz * dz > limit_sq_lo[d, p]
-                mask[p] |= np.uint8(long) << np.uint8(d)
+                dx = x0[q] - x0[p]
+                dy = x1[q] - x1[p]
+                dz = x2[q] - x2[p]
+                long_d[p] = dx * dx + dy * dy + dz * dz > lim_d[p]
         for p in range(lo, hi):
-            mask[p] &= exist_bits[p]
+            bits = (np.uint8(long[0, p]) | (np.uint8(long[1, p]) << 1)
+                    | (np.uint8(long[2, p]) << 2) | (np.uint8(long[3, p]) << 3)
+                    | (np.uint8(long[4, p]) << 4) | (np.uint8(long[5, p]) << 5))
+            mask[p] = bits & exist_bits[p]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -68,14 +75,15 @@ def _mark_after(r, p, d, offsets, exist_bits, mask):
 
 
 @njit(cache=True, nogil=True)
-def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, mask):
+def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
 
     Half the correction goes to each end, all of it to the free end if one end is pinned,
-    none if both are. `mask` is scratch (see candidate_mask).
+    none if both are. `scratch` comes from candidate_mask.
     """
     n = x.shape[1]
-    _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, mask)
+    _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch)
+    mask = scratch[0]
     for p in range(n):
         if mask[p] == 0:
             continue
