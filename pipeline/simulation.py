@@ -86,7 +86,7 @@ class Simulation:
         """Advance by `steps` time steps; raises DivergenceError if the run blows up."""
         done, kinetic, bound = self._state.advance(self.system, steps)
         self.step_count += done
-        if done < steps or not math.isfinite(kinetic):
+        if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
             raise DivergenceError(self._divergence_message(kinetic, bound))
 
     def advance(self, frames: int = 1) -> None:
