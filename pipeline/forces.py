@@ -44,12 +44,14 @@ def _chunk(c, n):
 def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
     """spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none)."""
     n = x.shape[1]
+    x0, x1, x2 = x[0], x[1], x[2]  # 1-D rows: the loops below vectorise on them, not on x[a, p]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
             k = stiffness[d]
             off = offsets[d]
             fdx, fdy, fdz = spring_force[d, 0], spring_force[d, 1], spring_force[d, 2]
+            ex, rest_d = exists[d], rest[d]
             if k == 0.0:
                 fdx[lo:hi] = 0.0
                 fdy[lo:hi] = 0.0
@@ -61,12 +63,12 @@ def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
             fdz[lo:start] = 0.0
             for p in range(start, hi):
                 q = p + off
-                dx = x[0, q] - x[0, p]
-                dy = x[1, q] - x[1, p]
-                dz = x[2, q] - x[2, p]
+                dx = x0[q] - x0[p]
+                dy = x1[q] - x1[p]
+                dz = x2[q] - x2[p]
                 length = np.sqrt(dx * dx + dy * dy + dz * dz)
-                s = k * (length - rest[d, p])
-                ok = exists[d, p] and length > 0.0  # zero length: direction undefined
+                s = k * (length - rest_d[p])
+                ok = ex[p] & (length > 0.0)  # zero length: direction undefined
                 fdx[p] = (dx / length) * s if ok else 0.0
                 fdy[p] = (dy / length) * s if ok else 0.0
                 fdz[p] = (dz / length) * s if ok else 0.0
@@ -95,3 +97,127 @@ def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spr
             weight = mass * gravity[a]
             for p in range(lo, hi):
                 f[a, p] = gathered_force(p, a, weight, spring_force, offsets, order)
+
+
+# --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------
+
+@njit(cache=True, nogil=True)
+def total_force(x, s, f):
+    """f[:] = mass * gravity + spring forces at positions x (3, N), for the System `s`
+    (the same sums, in the same order, as the Verlet update gathers)."""
+    spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
+                  s.gravity, s.spring_force, f)
+
+
+@njit(cache=True, nogil=True)
+def spring_energy(x, offsets, exists, rest, stiffness):
+    """Potential energy sum of k (|pa - pb| - rest)^2 / 2 over the enabled springs (J)."""
+    n = x.shape[1]
+    energy = 0.0
+    for d in range(6):
+        k = stiffness[d]
+        if k == 0.0:
+            continue
+        off = offsets[d]
+        for p in range(max(0, -off), n):
+            if not exists[d, p]:
+                continue
+            q = p + off
+            dx = x[0, q] - x[0, p]
+            dy = x[1, q] - x[1, p]
+            dz = x[2, q] - x[2, p]
+            stretch = np.sqrt(dx * dx + dy * dy + dz * dz) - rest[d, p]
+            energy += 0.5 * k * stretch * stretch
+    return energy
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha):
+    """Per-spring data of the force Jacobian at x (Baraff and Witkin 1998, section 4.2).
+
+    For spring (d, p) to q = p + offsets[d], with u = (x_q - x_p) / l, the block
+    K_s = d f_p / d x_q = k u u^T + k max(0, 1 - rest / l) (I - u u^T): the exact derivative
+    of Hooke's force k (l - rest) u, except that the transverse term is dropped for
+    compressed springs (it is negative there), which keeps the system matrix
+    M - h^2 df/dx symmetric positive definite (the usual cloth filter, Choi and Ko 2002).
+    Fills unit[d, :, p] = u and alpha[d, p] = k max(0, 1 - rest / l); alpha is -1 where the
+    spring exerts no force (missing, disabled, zero length).
+    """
+    n = x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for d in range(6):
+            k = stiffness[d]
+            off = offsets[d]
+            for p in range(lo, hi):
+                q = p + off
+                if k == 0.0 or q < 0 or not exists[d, p]:
+                    alpha[d, p] = -1.0
+                    continue
+                dx = x[0, q] - x[0, p]
+                dy = x[1, q] - x[1, p]
+                dz = x[2, q] - x[2, p]
+                length = np.sqrt(dx * dx + dy * dy + dz * dz)
+                if not length > 0.0:
+                    alpha[d, p] = -1.0
+                    continue
+                unit[d, 0, p] = dx / length
+                unit[d, 1, p] = dy / length
+                unit[d, 2, p] = dz / length
+                alpha[d, p] = k * max(0.0, 1.0 - rest[d, p] / length)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out):
+    """out = K y with K = d(spring forces)/dx at the point of `spring_jacobian` (K is
+    negative semi-definite): (K y)_p = sum over springs s at p of K_s (y_other - y_p).
+    `buffer` is a (6, 3, N + pad) scratch like forces.spring_force_buffer."""
+    n = y.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for d in range(6):
+            k = stiffness[d]
+            off = offsets[d]
+            for p in range(lo, hi):
+                a = alpha[d, p]
+                if a < 0.0:
+                    buffer[d, 0, p] = 0.0
+                    buffer[d, 1, p] = 0.0
+                    buffer[d, 2, p] = 0.0
+                    continue
+                q = p + off
+                rx = y[0, q] - y[0, p]
+                ry = y[1, q] - y[1, p]
+                rz = y[2, q] - y[2, p]
+                ux, uy, uz = unit[d, 0, p], unit[d, 1, p], unit[d, 2, p]
+                along = ux * rx + uy * ry + uz * rz
+                buffer[d, 0, p] = (k - a) * along * ux + a * rx
+                buffer[d, 1, p] = (k - a) * along * uy + a * ry
+                buffer[d, 2, p] = (k - a) * along * uz + a * rz
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for a in range(3):
+            for p in range(lo, hi):
+                out[a, p] = gathered_force(p, a, 0.0, buffer, offsets, order)
+
+
+@njit(cache=True, nogil=True)
+def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
+    """out[a, p] = -(K)_{pa, pa}: the diagonal of -K (>= 0) at the point of `spring_jacobian`,
+    summed over the springs at p (its own and those ending at it); for a Jacobi
+    preconditioner."""
+    n = out.shape[1]
+    out[:] = 0.0
+    for d in range(6):
+        k = stiffness[d]
+        off = offsets[d]
+        for p in range(n):
+            a = alpha[d, p]
+            if a < 0.0:
+                continue
+            q = p + off
+            for ax in range(3):
+                u = unit[d, ax, p]
+                diag = k * u * u + a * (1.0 - u * u)
+                out[ax, p] += diag
+                out[ax, q] += diag

@@ -34,7 +34,8 @@ __all__ = [
 
 #: Known integrator names for `simulation.integrator` (the first is the default).
 #: The schema's enum is built from this tuple at load time: adding one is one edit here.
-INTEGRATORS: tuple[str, ...] = ("verlet",)
+INTEGRATORS: tuple[str, ...] = (
+    "verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
 
 #: Known shader names for `render.shader` (schema enum built from this tuple).
 SHADERS: tuple[str, ...] = (

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .integrators import state_class
+from .integrators import integrator_module
 from .model import ClothModel, build_model
 from .scene import Scene, load_scene
 from .system import System, build_system, stability_limit
@@ -41,10 +41,12 @@ class Simulation:
         self.model: ClothModel = build_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
         self.integrator = self.scene.simulation.integrator
-        self._state = state_class(self.integrator)(self.system)
+        module = integrator_module(self.integrator)
+        self._state = module.State(self.system)
         self.step_count = 0
         self.omega_max, self.dt_max = stability_limit(self.model)
-        if self.system.dt > self.dt_max:
+        self.step_limited = module.CONDITIONALLY_STABLE
+        if self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
 
     # --- state -------------------------------------------------------------------------
@@ -119,7 +121,7 @@ class Simulation:
         else:
             what = (f"kinetic energy {kinetic:.4g} J exceeds {bound:.4g} J, more than gravity "
                     f"can have supplied (max point speed {speed:.3g} m/s)")
-        advice = (self.stability_message() if self.system.dt > self.dt_max else
+        advice = (self.stability_message() if self.step_limited and self.system.dt > self.dt_max else
                   "use a larger simulation.steps_per_frame or a smaller cloth.ks")
         return (f"simulation diverged at frame {frame + 1}, step {step_in_frame + 1} of "
                 f"{spf} (t = {self.time:.4f} s): {what}; {advice}")

@@ -46,7 +46,7 @@ class System(NamedTuple):
     self_collision: bool
     scratch: tuple  # SelfCollisionScratch.as_tuple()
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
-    mask: np.ndarray  # scratch of constraints.limit_stretch
+    mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
 
 
@@ -170,3 +170,53 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     if omega_max == 0.0:
         return 0.0, math.inf
     return omega_max, math.sqrt(2.0 * (2.0 - model.damping)) / omega_max
+
+
+# --- shared passes of the integrators other than Verlet (issue 6) -------------------------
+
+from .colliders import collide_all  # noqa: E402
+from .constraints import limit_stretch  # noqa: E402
+from .self_collision import self_collide  # noqa: E402
+
+
+@njit(cache=True, nogil=True)
+def drag_rate(system):
+    """The scene's damping as a drag rate gamma (1/s): dv/dt = -gamma v loses exactly the
+    fraction `system.damping` of the velocity over one step of `system.dt`, as the Verlet
+    update does: gamma = -ln(1 - damping) / dt."""
+    if system.damping <= 0.0:
+        return 0.0
+    return -np.log(1.0 - system.damping) / system.dt
+
+
+@njit(cache=True, nogil=True)
+def position_passes(x, last, system):
+    """Steps 3-5 of the classic order on the free points of x (3, N), after an integrator's
+    update from the start-of-step positions `last`: self-collision (when enabled), the
+    colliders in scene order (friction measured from `last`), then Provot's stretch limit."""
+    s = system
+    if s.self_collision:
+        self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
+                     s.steps_per_frame, s.scratch)
+    collide_all(x, last, s.pinned, s.collider_kinds, s.collider_params)
+    limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+
+
+@njit(cache=True, nogil=True)
+def corrected_velocities(x, predicted, v, pinned, dt):
+    """v += (x - predicted) / dt for every free point: the position passes' correction as a
+    velocity change, on top of the integrator's own end-of-step velocity."""
+    for p in range(x.shape[1]):
+        if pinned[p]:
+            continue
+        for a in range(3):
+            v[a, p] += (x[a, p] - predicted[a, p]) / dt
+
+
+@njit(cache=True, nogil=True)
+def step_guard(x, last, system):
+    """The shared divergence guard after one step from `last` to x: (ok, kinetic, bound),
+    with velocities estimated as (x - last) / dt, exactly as the Verlet integrator does."""
+    finite, v_sq, drop = motion_summary(x, last, system)
+    kinetic, bound = energy_guard(v_sq / (system.dt * system.dt), drop, system)
+    return finite and kinetic <= bound, kinetic, bound

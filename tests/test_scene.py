@@ -144,11 +144,11 @@ def test_schema_enums_come_from_the_module_tuples(monkeypatch):
     props = schema["$defs"]
     assert props["simulation"]["properties"]["integrator"]["enum"] == list(INTEGRATORS)
     assert props["render"]["properties"]["shader"]["enum"] == list(SHADERS)
-    assert "rk4" not in INTEGRATORS
+    assert "leapfrog" not in INTEGRATORS
     d = raw("plane")
-    assert "simulation.integrator" in error_of(d, ["simulation.integrator=rk4"])
-    monkeypatch.setattr(scene_mod, "INTEGRATORS", INTEGRATORS + ("rk4",))
-    assert load_scene(d, ["simulation.integrator=rk4"]).simulation.integrator == "rk4"
+    assert "simulation.integrator" in error_of(d, ["simulation.integrator=leapfrog"])
+    monkeypatch.setattr(scene_mod, "INTEGRATORS", INTEGRATORS + ("leapfrog",))
+    assert load_scene(d, ["simulation.integrator=leapfrog"]).simulation.integrator == "leapfrog"
 
 
 def test_every_schema_property_is_described_and_documented():

@@ -1,20 +1,44 @@
 """Integrators: one module each, same interface.
 
-A module defines NAME and a `State(system)` class with `x` (3, N) positions,
+A module defines NAME, CONDITIONALLY_STABLE (True when its step must stay below the explicit
+stability limit of the lattice: the Simulation then warns above it) and a `State(system)`
+class with `x` (3, N) positions,
 `velocity(system)` and `advance(system, steps) -> (steps done, kinetic energy, bound)`,
 where fewer steps done than asked means the divergence guard tripped. Modules are found by
-name: `state_class("verlet")` imports `pipeline.integrators.verlet`.
+name: `state_class("verlet")` imports `pipeline.integrators.verlet` ('-' becomes '_':
+`state_class("implicit-euler")` imports `pipeline.integrators.implicit_euler`).
+
+    verlet            the classic damped Verlet (SPEC section 2), bit-identical to the course
+    euler             explicit Euler on (x, v)
+    symplectic-euler  v first, then x with the new v (shares euler's kernel)
+    rk4               classical Runge-Kutta, four force evaluations per step
+    implicit-euler    backward Euler linearised once per step, matrix-free PCG (Baraff and
+                      Witkin 1998), pinned points filtered
+    xpbd              springs as compliant distance constraints, alpha = 1 / k (Macklin et al.
+                      2016), one Gauss-Seidel sweep per step
+
+All of them use the same forces (forces.total_force), the same position passes in the
+classic order after the update (system.position_passes: self-collision, colliders, Provot)
+and the same divergence guard (system.step_guard). The velocity-based methods read the
+scene's damping as a drag rate (system.drag_rate) and turn the position passes' corrections
+into velocity changes (system.corrected_velocities). docs/integrators.md has the measured
+orders, stability limits and work-precision charts, and which one to pick.
 """
 from __future__ import annotations
 
 import importlib
+from types import ModuleType
 
 from ..scene import INTEGRATORS
 
 
-def state_class(name: str):
-    """The State class of the integrator called `name` (as in the scene)."""
+def integrator_module(name: str) -> ModuleType:
+    """The module of the integrator called `name` (as in the scene)."""
     if name not in INTEGRATORS:
         raise ValueError(f"unknown integrator {name!r}; expected one of {', '.join(INTEGRATORS)}")
-    module = importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
-    return module.State
+    return importlib.import_module(f"{__name__}.{name.replace('-', '_')}")
+
+
+def state_class(name: str):
+    """The State class of the integrator called `name` (as in the scene)."""
+    return integrator_module(name).State

@@ -15,6 +15,7 @@ from ..self_collision import self_collide
 from ..system import System, energy_guard, motion_summary
 
 NAME = "verlet"
+CONDITIONALLY_STABLE = True
 
 
 class State:

@@ -1,0 +1,426 @@
+"""Integrator benchmark: accuracy against wall-clock time, and the largest stable step.
+
+`main(argv)` (wired as `render bench SCENE.json [--out DIR]`) writes into DIR:
+    <scene>_work_precision.{png,svg,csv}  RMS position error at t = T against a converged
+        reference (rk4 at a 16x smaller step than the scene's, checked against 32x), versus
+        wall-clock seconds, one line per integrator over a sweep of steps per frame;
+    <scene>_stability.{png,svg,csv}  largest stable step versus ks on a small copy of the
+        scene (--stability-grid, default 10x10), found by bisection, with the theoretical
+        explicit limit 2 / omega_max (pipeline.system.stability_limit).
+See docs/integrators.md for the definitions and the measured results.
+
+Fair comparison rules:
+  * every integrator runs the same forces, the same position passes, the same guard;
+  * the physical damping stays the same as the step changes: the scene's damping (percent of
+    velocity lost per step at the scene's own step dt0) is a drag rate
+    gamma = -ln(1 - c) / dt0, and a run at step dt gets c' = 1 - (1 - c)^(dt / dt0) per step
+    (Verlet and XPBD use c' directly, the velocity-based methods use gamma);
+  * Verlet starts from x_last = x0 + dt^2 a0 / 2 (the Taylor start for v0 = 0) instead of the
+    classic x_last = x0, whose first step is O(dt) wrong in velocity and would make the
+    method first order (`classic_start=True` keeps the classic start);
+  * numba runs on one thread (the machine is shared: threads waiting on busy cores made the
+    parallel kernels 10-50x slower and the timings meaningless); JIT compilation is excluded.
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import csv
+import json
+import math
+import sys
+import time
+import warnings
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from .forces import spring_energy, total_force
+from .integrators import state_class
+from .model import DIRECTION_TYPE, build_model
+from .scene import INTEGRATORS, Scene, load_scene
+from .system import System, build_system, stability_limit
+
+REFERENCE = "rk4"
+REFERENCE_FACTOR = 16  # the reference runs at dt_scene / 16 ...
+CHECK_FACTOR = 32  # ... and is checked against dt_scene / 32
+STEPS_PER_FRAME_SWEEP = (1, 2, 4, 8, 15, 30, 60, 120)
+KS_SWEEP = (1e2, 1e3, 1e4, 1e5, 1e6)
+STRAIN_LIMIT = 0.25  # divergence: 99th percentile |strain| of an unconstrained probe step
+STABILITY_TIME = 0.5  # seconds simulated per stability trial ...
+MAX_STABILITY_STEPS = 20_000  # ... or this many steps if fewer (explicit Euler's tiny steps)
+COLORS = {"verlet": "C0", "euler": "C3", "symplectic-euler": "C1", "rk4": "C2",
+          "implicit-euler": "C4", "xpbd": "C5"}
+
+
+# --- building runs ------------------------------------------------------------------------
+
+def scene_data(source) -> dict:
+    if isinstance(source, dict):
+        return copy.deepcopy(source)
+    return json.loads(Path(source).read_text())
+
+
+def resized(data: dict, nw: int, nh: int) -> dict:
+    """A copy of the scene dict with an nw x nh cloth; pins keep their relative place."""
+    data = copy.deepcopy(data)
+    c = data["cloth"]
+    ow, oh = c["num_width_points"], c["num_height_points"]
+    c["num_width_points"], c["num_height_points"] = nw, nh
+    if "pinned" in c:
+        c["pinned"] = sorted({(round(x * (nw - 1) / (ow - 1)), round(y * (nh - 1) / (oh - 1)))
+                              for x, y in c["pinned"]})
+        c["pinned"] = [list(p) for p in c["pinned"]]
+    return data
+
+
+class Run:
+    """One integrator on one scene at one step: `state`, `system`, `model`, `scene`.
+
+    `initial_positions` (N, 3) replace the grid (and so the rest lengths); `start_positions`
+    (N, 3) only move the points at t = 0 (springs keep the grid's rest lengths)."""
+
+    def __init__(self, scene: Scene | dict | str | Path, integrator: str, *,
+                 dt: float | None = None, initial_positions=None, start_positions=None,
+                 classic_start: bool = False) -> None:
+        self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        self.scene = replace(self.scene, simulation=replace(self.scene.simulation,
+                                                            integrator=integrator))
+        self.model = build_model(self.scene, initial_positions)
+        system = build_system(self.scene, self.model)
+        self.dt0 = system.dt
+        if dt is not None:
+            # keep the scene's drag rate: c' = 1 - (1 - c)^(dt / dt0)
+            damping = 1.0 - (1.0 - system.damping) ** (dt / system.dt)
+            system = system._replace(dt=float(dt), damping=damping)
+        self.system: System = system
+        self.integrator = integrator
+        self.state = state_class(integrator)(system)
+        self.steps = 0
+        if start_positions is not None:  # (N, 3): start away from rest, springs unchanged
+            self.state.x[:] = np.asarray(start_positions, dtype=np.float64).T
+            self.state.last[:] = self.state.x
+        if integrator == "verlet" and not classic_start:
+            force = np.zeros_like(self.state.x)
+            total_force(self.state.x, system, force)
+            free = system.pinned == 0
+            h2 = system.dt * system.dt
+            # x_-1 = x0 - v0 dt + a0 dt^2 / 2 with v0 = 0
+            self.state.last[:, free] = self.state.x[:, free] + (0.5 * h2 / system.mass) * \
+                force[:, free]
+
+    def advance(self, steps: int) -> bool:
+        """Advance; False when the divergence guard tripped."""
+        done, kinetic, _ = self.state.advance(self.system, steps)
+        self.steps += done
+        return done == steps and math.isfinite(kinetic)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.state.x
+
+    def energy(self) -> float:
+        """Kinetic + spring potential + gravity potential (J)."""
+        s = self.system
+        v = self.state.velocity(s)
+        kinetic = 0.5 * s.mass * float(np.sum(v * v))
+        potential = spring_energy(self.state.x, s.offsets, s.exists, s.rest, s.stiffness)
+        gravity = -s.mass * float(np.sum(s.gravity[:, None] * self.state.x))
+        return kinetic + potential + gravity
+
+    def probe_strain(self, compression: bool = False) -> float:
+        """99th percentile of |strain| over the force-carrying structural and shearing
+        springs after one more step with Provot switched off (the state is not changed):
+        the stretch limit hides a blow-up as crumpling, this shows it."""
+        state = copy.deepcopy(self.state)
+        s = self.system
+        free = s._replace(limit=s.limit * 1e6, limit_sq_lo=s.limit_sq_lo * 1e12,
+                          spring_force=s.spring_force.copy())
+        state.advance(free, 1)
+        x = state.x
+        n = x.shape[1]
+        strains = []
+        for d in range(6):
+            if DIRECTION_TYPE[d] == 2 or s.stiffness[d] == 0.0:
+                continue
+            p = np.nonzero(s.exists[d])[0]
+            q = p + s.offsets[d]
+            length = np.linalg.norm(x[:, q] - x[:, p], axis=0)
+            strains.append(length / s.rest[d, p] - 1.0)
+        if not strains or n == 0:
+            return 0.0
+        values = np.concatenate(strains)
+        values = np.maximum(-values, 0.0) if compression else np.abs(values)
+        if not np.all(np.isfinite(values)):
+            return math.inf
+        return float(np.percentile(values, 99))
+
+
+def set_threads(count: int = 1) -> None:
+    import numba
+
+    numba.set_num_threads(min(count, numba.config.NUMBA_NUM_THREADS))
+
+
+def rms(a: np.ndarray, b: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=0))))
+
+
+def run_until(scene, integrator: str, dt: float, t_end: float, **kw) -> tuple[Run, bool, float]:
+    """(run, completed without divergence, wall seconds) for a run to t_end = steps * dt."""
+    run = Run(scene, integrator, dt=dt, **kw)
+    steps = round(t_end / dt)
+    start = time.perf_counter()
+    ok = run.advance(steps)
+    return run, ok, time.perf_counter() - start
+
+
+def warm_up(scene) -> None:
+    """Compile every integrator (and the probe) on a tiny copy of the scene."""
+    data = resized(scene_data(scene), 4, 4)
+    for name in INTEGRATORS:
+        run = Run(data, name)
+        run.advance(2)
+        run.probe_strain()
+
+
+# --- (b) work-precision -------------------------------------------------------------------
+
+def work_precision(scene, t_end: float = 1.0, sweep=STEPS_PER_FRAME_SWEEP,
+                   integrators=INTEGRATORS, log=print) -> tuple[list[dict], dict]:
+    """Rows (integrator, steps_per_frame, dt, error, seconds, ok) and reference facts."""
+    base = Run(scene, REFERENCE)
+    fps = base.scene.simulation.frames_per_sec
+    dt0 = base.dt0
+    ref, ok_ref, sec_ref = run_until(scene, REFERENCE, dt0 / REFERENCE_FACTOR, t_end)
+    chk, ok_chk, sec_chk = run_until(scene, REFERENCE, dt0 / CHECK_FACTOR, t_end)
+    if not (ok_ref and ok_chk):
+        raise RuntimeError("the reference diverged")
+    info = {"t_end": t_end, "dt_scene": dt0, "reference_dt": dt0 / REFERENCE_FACTOR,
+            "reference_check_rms": rms(ref.x, chk.x), "reference_seconds": sec_ref,
+            "check_seconds": sec_chk}
+    log(f"reference {REFERENCE} dt={dt0 / REFERENCE_FACTOR:.3g}s ({sec_ref:.1f}s wall); "
+        f"RMS difference to dt/{CHECK_FACTOR}: {info['reference_check_rms']:.3g} m")
+    rows = []
+    for name in integrators:
+        for spf in sweep:
+            dt = 1.0 / fps / spf
+            run, ok, seconds = run_until(scene, name, dt, t_end)
+            error = rms(run.x, ref.x) if ok else math.nan
+            strain = run.probe_strain() if ok else math.inf
+            crumpled = strain > STRAIN_LIMIT
+            rows.append({"integrator": name, "steps_per_frame": spf, "dt": dt,
+                         "rms_error": error, "seconds": seconds, "ok": ok and not crumpled,
+                         "guard_ok": ok, "probe_strain_p99": strain})
+            log(f"  {name:17s} spf={spf:4d} dt={dt:.3g} error={error:.3g} m "
+                f"time={seconds:.3f}s guard={'ok' if ok else 'TRIPPED'} "
+                f"strain99={strain:.3f}{' CRUMPLED' if crumpled else ''}")
+    return rows, info
+
+
+# --- stability ------------------------------------------------------------------------------
+
+def is_stable(data: dict, integrator: str, dt: float, t_end: float = STABILITY_TIME) -> bool:
+    """Stable: the shared energy guard never trips over t_end (at least 8 steps, at most
+    MAX_STABILITY_STEPS), and at
+    t_end / 2 and t_end the unconstrained probe step (Provot off) keeps the 99th percentile
+    |strain| of the structural and shearing springs below STRAIN_LIMIT (2.5 times Provot's
+    cap: a blow-up that the stretch limit turns into crumpling shows there; the first
+    steps' transient, e.g. of a huge implicit step, is not judged)."""
+    run = Run(data, integrator, dt=dt)
+    total = min(max(round(t_end / dt), 8), MAX_STABILITY_STEPS)
+    if not run.advance(total // 2) or run.probe_strain() > STRAIN_LIMIT:
+        return False
+    return run.advance(total - total // 2) and run.probe_strain() <= STRAIN_LIMIT
+
+
+def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
+                        iterations: int = 6) -> tuple[float, str]:
+    """Largest stable step in [lo, hi]: scan up from lo by factors of 2 to the first
+    unstable step, then bisect (in log dt) between it and the last stable one, so the answer
+    is the first failure (stability need not be monotone in dt: a few huge steps can pass).
+    Returns (dt, note): note '' , '>=' (stable up to hi) or '<' (unstable at lo)."""
+    if not is_stable(data, integrator, lo):
+        return lo, "<"
+    stable = lo
+    while True:
+        trial = min(2.0 * stable, hi)
+        if not is_stable(data, integrator, trial):
+            unstable = trial
+            break
+        if trial >= hi:
+            return hi, ">="
+        stable = trial
+    for _ in range(iterations):
+        mid = math.sqrt(stable * unstable)
+        if is_stable(data, integrator, mid):
+            stable = mid
+        else:
+            unstable = mid
+    return stable, ""
+
+
+def stability(scene, grid: int = 10, ks_values=KS_SWEEP, integrators=INTEGRATORS,
+              log=print) -> list[dict]:
+    rows = []
+    data0 = resized(scene_data(scene), grid, grid)
+    for ks in ks_values:
+        data = copy.deepcopy(data0)
+        data["cloth"]["ks"] = ks
+        probe = Run(data, "verlet")
+        omega, dt_verlet = stability_limit(probe.model)
+        dt_theory = 2.0 / omega
+        gamma = -math.log(1.0 - probe.system.damping) / probe.dt0 if probe.system.damping else 0
+        dt_euler = 2.0 * gamma / (gamma * gamma + omega * omega)
+        for name in integrators:
+            lo = dt_theory / 16 if name != "euler" else min(dt_theory, dt_euler) / 4
+            hi = dt_theory * (200 if name in ("implicit-euler", "xpbd") else 16)
+            t0 = time.perf_counter()
+            dt, note = largest_stable_step(data, name, lo, hi)
+            rows.append({"integrator": name, "ks": ks, "dt_stable": dt, "bound": note,
+                         "omega_max": omega, "dt_theory": dt_theory,
+                         "dt_verlet_damped": dt_verlet, "dt_euler_theory": dt_euler,
+                         "ratio": dt / dt_theory})
+            log(f"  ks={ks:8.0f} {name:17s} dt_stable {note}{dt:.4g} s = {dt / dt_theory:.3g} x "
+                f"2/omega_max ({dt_theory:.4g} s; omega_max {omega:.4g}) "
+                f"[{time.perf_counter() - t0:.1f}s]")
+    return rows
+
+
+# --- charts ---------------------------------------------------------------------------------
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def chart_work_precision(rows, info, title: str, stem: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    for name in INTEGRATORS:
+        pts = [r for r in rows if r["integrator"] == name]
+        good = [r for r in pts if r["ok"]]
+        if good:
+            ax.loglog([r["seconds"] for r in good], [r["rms_error"] for r in good], "o-",
+                      color=COLORS[name], label=name)
+            for r in good:
+                ax.annotate(str(r["steps_per_frame"]), (r["seconds"], r["rms_error"]),
+                            fontsize=6, xytext=(3, 3), textcoords="offset points")
+        bad = [r for r in pts if not r["ok"] and math.isfinite(r["rms_error"])]
+        if bad:
+            ax.loglog([r["seconds"] for r in bad], [r["rms_error"] for r in bad], "x",
+                      color=COLORS[name], ms=7)
+    ax.axhline(info["reference_check_rms"], color="gray", ls=":", lw=1,
+               label="reference uncertainty (16x vs 32x)")
+    ax.set_xlabel("wall-clock seconds for the run (one thread)")
+    ax.set_ylabel(f"RMS position error at t = {info['t_end']:g} s (m)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.text(0.01, 0.005, "labels: steps per frame; x: guard ok but crumpled "
+             f"(probe strain p99 > {STRAIN_LIMIT})", fontsize=7)
+    fig.tight_layout()
+    for ext in ("png", "svg"):
+        fig.savefig(stem.with_suffix("." + ext), dpi=130)
+    plt.close(fig)
+
+
+def chart_stability(rows, title: str, stem: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5.5))
+    ks = sorted({r["ks"] for r in rows})
+    theory = [next(r["dt_theory"] for r in rows if r["ks"] == k) for k in ks]
+    euler_theory = [next(r["dt_euler_theory"] for r in rows if r["ks"] == k) for k in ks]
+    ax.loglog(ks, theory, "k--", lw=1.5, label="2 / omega_max (stability_limit)")
+    ax.loglog(ks, euler_theory, "k:", lw=1, label="explicit Euler: 2 gamma / (gamma^2 + omega^2)")
+    offsets = {name: 1.0 + 0.03 * (i - 2.5) for i, name in enumerate(INTEGRATORS)}
+    for name in INTEGRATORS:
+        pts = sorted((r for r in rows if r["integrator"] == name), key=lambda r: r["ks"])
+        xs = [r["ks"] * offsets[name] for r in pts]
+        ax.loglog(xs, [r["dt_stable"] for r in pts], "o-", color=COLORS[name], label=name)
+        for r, x in zip(pts, xs):
+            if r["bound"]:
+                ax.annotate(r["bound"], (x, r["dt_stable"]), fontsize=8, color=COLORS[name],
+                            xytext=(4, -3), textcoords="offset points")
+    ax.set_xlabel("ks (N/m)")
+    ax.set_ylabel("largest stable step (s)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    for ext in ("png", "svg"):
+        fig.savefig(stem.with_suffix("." + ext), dpi=130)
+    plt.close(fig)
+
+
+# --- entry point ----------------------------------------------------------------------------
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="render bench", description=__doc__.split("\n")[0])
+    parser.add_argument("scene", help="scene JSON")
+    parser.add_argument("--out", default="renders/bench", help="output folder")
+    parser.add_argument("--grid", type=int, default=0,
+                        help="cloth points per side for the work-precision runs (0: the scene's)")
+    parser.add_argument("--stability-grid", type=int, default=10,
+                        help="cloth points per side for the stability search (default 10)")
+    parser.add_argument("--time", type=float, default=1.0, help="simulated seconds (default 1)")
+    parser.add_argument("--sweep", default=",".join(map(str, STEPS_PER_FRAME_SWEEP)),
+                        help="steps per frame to try, comma-separated")
+    parser.add_argument("--ks", default=",".join(f"{k:g}" for k in KS_SWEEP),
+                        help="ks values of the stability search, comma-separated")
+    parser.add_argument("--skip-stability", action="store_true")
+    parser.add_argument("--skip-work-precision", action="store_true")
+    args = parser.parse_args(argv)
+
+    set_threads(1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # StabilityWarning is expected for the large steps
+        return _bench(args)
+
+
+def _bench(args) -> int:
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    data = scene_data(args.scene)
+    name = Path(args.scene).stem
+    if args.grid:
+        data = resized(data, args.grid, args.grid)
+    c = data["cloth"]
+    size = f"{c['num_width_points']}x{c['num_height_points']}"
+    t0 = time.perf_counter()
+    warm_up(data)
+    print(f"compiled in {time.perf_counter() - t0:.1f}s")
+    if not args.skip_work_precision:
+        sweep = tuple(int(v) for v in args.sweep.split(","))
+        print(f"work-precision on {name} ({size}), t = {args.time} s")
+        rows, info = work_precision(data, args.time, sweep)
+        stem = out / f"{name}_work_precision"
+        write_csv(stem.with_suffix(".csv"), rows)
+        (out / f"{name}_reference.json").write_text(json.dumps(info, indent=2) + "\n")
+        chart_work_precision(rows, info, f"{name} ({size}, damping {c['damping']}%): error at "
+                             f"t = {args.time:g} s vs {REFERENCE} at dt/{REFERENCE_FACTOR}", stem)
+    if not args.skip_stability:
+        g = args.stability_grid
+        print(f"stability on {name} ({g}x{g})")
+        rows = stability(data, g, tuple(float(k) for k in args.ks.split(",")))
+        stem = out / f"{name}_stability"
+        write_csv(stem.with_suffix(".csv"), rows)
+        chart_stability(rows, f"{name} ({g}x{g}): largest stable step over {STABILITY_TIME} s "
+                        f"(guard + probe strain p99 < {STRAIN_LIMIT})", stem)
+    print(f"done in {time.perf_counter() - t0:.1f}s; wrote {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

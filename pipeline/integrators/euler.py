@@ -1,0 +1,80 @@
+"""Explicit (forward) Euler on positions and velocities; its kernel also serves
+symplectic Euler (pipeline/integrators/symplectic_euler.py), which differs in one line.
+
+    a = F(x) / m - gamma v           (gamma = system.drag_rate: the scene's damping)
+    explicit:    x' = x + dt v,  v' = v + dt a
+    symplectic:  v' = v + dt a,  x' = x + dt v'
+Pinned points never move and keep v = 0. After the update come the shared position passes
+(self-collision, colliders, Provot); their correction dx of a point becomes a velocity
+change v' += dx / dt (docs/integrators.md).
+State: positions x, velocities v, start-of-step positions last, all (3, N).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ..forces import CHUNKS, _chunk, total_force
+from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
+
+NAME = "euler"
+CONDITIONALLY_STABLE = True
+
+
+class VelocityState:
+    """Positions, velocities and start-of-step positions (3, N) each, plus scratch."""
+
+    symplectic = False
+
+    def __init__(self, system: System) -> None:
+        self.x = system.x0.copy()
+        self.v = np.zeros_like(self.x)
+        self.last = system.x0.copy()
+        self.predicted = np.zeros_like(self.x)
+        self.force = np.zeros_like(self.x)
+
+    def velocity(self, system: System) -> np.ndarray:
+        return self.v.copy()
+
+    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
+        return advance(system, self.x, self.v, self.last, self.predicted, self.force, steps,
+                       self.symplectic)
+
+
+class State(VelocityState):
+    symplectic = False
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predicted):
+    n = x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            for a in range(3):
+                last[a, p] = x[a, p]
+                if not pinned[p]:
+                    acc = force[a, p] / mass - gamma * v[a, p]
+                    if symplectic:
+                        v[a, p] += dt * acc
+                        x[a, p] += dt * v[a, p]
+                    else:
+                        x[a, p] += dt * v[a, p]
+                        v[a, p] += dt * acc
+                predicted[a, p] = x[a, p]
+
+
+@njit(cache=True, nogil=True)
+def advance(s, x, v, last, predicted, force, steps, symplectic):
+    """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
+    gamma = drag_rate(s)
+    kinetic = bound = 0.0
+    for step in range(steps):
+        total_force(x, s, force)
+        euler_update(x, v, last, force, s.pinned, s.mass, gamma, s.dt, symplectic, predicted)
+        position_passes(x, last, s)
+        corrected_velocities(x, predicted, v, s.pinned, s.dt)
+        ok, kinetic, bound = step_guard(x, last, s)
+        if not ok:
+            return step + 1, kinetic, bound
+    return steps, kinetic, bound

@@ -1,0 +1,141 @@
+"""Backward Euler linearised once per step (Baraff and Witkin 1998, "Large steps in cloth
+simulation", section 4), matrix-free, with a filtered preconditioned conjugate gradient.
+
+With f(x, v) = m g + spring forces(x) - gamma m v (gamma = system.drag_rate), K = df/dx at
+the start of the step (spring Jacobians, see forces.spring_jacobian) and df/dv = -gamma M:
+
+    ((1 + dt gamma) M - dt^2 K) dv = dt (f(x, v) + dt K v),   v' = v + dv,   x' = x + dt v'.
+
+The system matrix is symmetric positive definite (compressed springs drop their transverse
+term); it is solved by conjugate gradients with a Jacobi preconditioner, never assembled.
+Pinned points are handled as in the paper's modified PCG (section 5.3): the filter S zeroes
+their components of the residual and the search directions, so they keep v = 0.
+The solve stops at a relative residual of CG_TOLERANCE (or CG_MAX_ITERATIONS).
+After the step come the shared position passes; their correction dx of a point becomes a
+velocity change v' += dx / dt (docs/integrators.md).
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ..forces import (CHUNKS, _chunk, spring_force_buffer, spring_jacobian,
+                      spring_jacobian_diagonal, spring_jacobian_product, total_force)
+from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
+from .euler import VelocityState
+
+NAME = "implicit-euler"
+CONDITIONALLY_STABLE = False
+CG_TOLERANCE = 1e-9  # relative residual |r| <= tol |b|
+CG_MAX_ITERATIONS = 1000
+
+
+class State(VelocityState):
+    def __init__(self, system: System) -> None:
+        super().__init__(system)
+        n = self.x.shape[1]
+        self.unit = np.zeros((6, 3, n))
+        self.alpha = np.zeros((6, n))
+        self.buffer = spring_force_buffer(n, system.nw)
+        # rhs, dv, residual, preconditioned residual, direction, product, diagonal
+        self.work = np.zeros((7, 3, n))
+        self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
+
+    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
+        return advance(system, self.x, self.v, self.last, self.predicted, self.force,
+                       self.unit, self.alpha, self.buffer, self.work, self.iterations, steps)
+
+
+@njit(cache=True, nogil=True)
+def _dot(a, b):
+    total = 0.0
+    for ax in range(3):
+        for p in range(a.shape[1]):
+            total += a[ax, p] * b[ax, p]
+    return total
+
+
+@njit(cache=True, nogil=True)
+def _apply(y, out, s, unit, alpha, buffer, diag_mass, h2):
+    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points)."""
+    spring_jacobian_product(y, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, out)
+    for ax in range(3):
+        for p in range(y.shape[1]):
+            out[ax, p] = 0.0 if s.pinned[p] else diag_mass * y[ax, p] - h2 * out[ax, p]
+
+
+@njit(cache=True, nogil=True)
+def solve_step(s, x, v, force, unit, alpha, buffer, work, gamma):
+    """dv of one linearised backward-Euler step (in work[1]); returns CG iterations."""
+    h = s.dt
+    h2 = h * h
+    b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
+    n = x.shape[1]
+    total_force(x, s, force)
+    spring_jacobian(x, s.offsets, s.exists, s.rest, s.stiffness, unit, alpha)
+    spring_jacobian_product(v, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, q)
+    spring_jacobian_diagonal(s.offsets, s.stiffness, unit, alpha, diag)
+    diag_mass = (1.0 + h * gamma) * s.mass
+    for ax in range(3):
+        for p in range(n):
+            if s.pinned[p]:
+                b[ax, p] = 0.0
+            else:
+                b[ax, p] = h * (force[ax, p] - gamma * s.mass * v[ax, p] + h * q[ax, p])
+            diag[ax, p] = diag_mass + h2 * diag[ax, p]
+            dv[ax, p] = 0.0
+            r[ax, p] = b[ax, p]
+            z[ax, p] = r[ax, p] / diag[ax, p]
+            d[ax, p] = z[ax, p]
+    target = CG_TOLERANCE * CG_TOLERANCE * _dot(b, b)
+    rz = _dot(r, z)
+    iterations = 0
+    while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
+        _apply(d, q, s, unit, alpha, buffer, diag_mass, h2)
+        dq = _dot(d, q)
+        if not dq > 0.0:
+            break
+        step = rz / dq
+        for ax in range(3):
+            for p in range(n):
+                dv[ax, p] += step * d[ax, p]
+                r[ax, p] -= step * q[ax, p]
+                z[ax, p] = r[ax, p] / diag[ax, p]
+        rz_new = _dot(r, z)
+        beta = rz_new / rz
+        rz = rz_new
+        for ax in range(3):
+            for p in range(n):
+                d[ax, p] = z[ax, p] + beta * d[ax, p]
+        iterations += 1
+    return iterations
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _update(x, v, last, dv, pinned, dt, predicted):
+    n = x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            for a in range(3):
+                last[a, p] = x[a, p]
+                if not pinned[p]:
+                    v[a, p] += dv[a, p]
+                    x[a, p] += dt * v[a, p]
+                predicted[a, p] = x[a, p]
+
+
+@njit(cache=True, nogil=True)
+def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, steps):
+    """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
+    gamma = drag_rate(s)
+    kinetic = bound = 0.0
+    for step in range(steps):
+        iterations[0] += solve_step(s, x, v, force, unit, alpha, buffer, work, gamma)
+        _update(x, v, last, work[1], s.pinned, s.dt, predicted)
+        position_passes(x, last, s)
+        corrected_velocities(x, predicted, v, s.pinned, s.dt)
+        ok, kinetic, bound = step_guard(x, last, s)
+        if not ok:
+            return step + 1, kinetic, bound
+    return steps, kinetic, bound
