@@ -1,0 +1,680 @@
+"""`render`: simulate a scene and write a GIF, MP4, PNG, PNG folder, OBJs or NPZ.
+
+    render SCENE.json --shader phong --out cloth.gif
+
+`main(argv)` returns the exit status: 0 ok, 1 internal failure (including a diverging
+simulation), 2 bad input (scene, flags, paths, missing texture), 3 `--check` beyond
+tolerance, 130 interrupted. Errors are one or two lines on stderr prefixed `render: `;
+`--debug` adds the traceback. See docs/cli.md.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import queue
+import sys
+import threading
+import time
+import traceback
+import warnings
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from . import outputs
+from .outputs import OutputError
+from .progress import bar, progress_enabled
+
+PROG = "render"
+DEFAULT_FPS = {"gif": 25.0, "mp4": 30.0, "png": 25.0, "dir": 25.0, None: 25.0}
+DEFAULT_DURATION = 3.0
+
+
+class UsageError(ValueError):
+    """A bad command line (exit status 2)."""
+
+
+# --------------------------------------------------------------------------- parsing
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message):  # argparse would print usage and exit; we raise instead
+        raise UsageError(message)
+
+
+def _version() -> str:
+    try:
+        from importlib.metadata import version
+
+        v = version("clothpipe")
+    except Exception:  # noqa: BLE001 - not installed: fall back to the package
+        from . import __version__ as v
+    return f"{PROG} (clothpipe) {v}"
+
+
+def _shader_names() -> tuple[str, ...]:
+    from shading import SHADERS
+
+    return tuple(SHADERS)
+
+
+def _positive_float(name):
+    def parse(text):
+        try:
+            v = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not (math.isfinite(v) and v > 0):
+            raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}")
+        return v
+    parse.__name__ = name
+    return parse
+
+
+def _nonneg_float(text):
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return v
+
+
+def _positive_int(text):
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return v
+
+
+def _int(text):
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+
+
+def _size(text):
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 512x512, got {text!r}"
+                                         ) from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise argparse.ArgumentTypeError(f"expected sizes from 1 to 16384, got {text!r}")
+    return w, h
+
+
+def _override(text):
+    if "=" not in text or not text.partition("=")[0].strip():
+        raise argparse.ArgumentTypeError(f"expected dotted.key=value, got {text!r}")
+    return text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    try:
+        shaders = ", ".join(_shader_names())
+    except Exception as exc:  # noqa: BLE001 - help must work even if shading is broken
+        shaders = f"(unavailable: {exc})"
+    import textwrap
+
+    def para(*texts):
+        return "\n\n".join(textwrap.fill(t, 79) for t in texts)
+
+    p = _Parser(
+        prog=PROG,
+        description=para("Simulate a cloth scene and render it to a GIF, MP4, PNG or a folder "
+                         "of PNGs; optionally export meshes (OBJ) and positions (NPZ)."),
+        epilog=para(
+            f"shaders: {shaders}.",
+            "Output type from --out: .gif, .mp4, .png (one frame), or a folder (a path ending "
+            "in '/' or an existing folder: numbered PNGs). Output frame k shows the simulated "
+            "state at t = k / fps (the simulator frame nearest to t).",
+            "Exit status: 0 ok, 1 internal failure or diverging simulation, 2 bad input, "
+            "3 --check beyond tolerance, 130 interrupted."),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        allow_abbrev=False,
+    )
+    p.add_argument("scene", metavar="SCENE.json", help="scene file (JSON)")
+    p.add_argument("--out", "-o", metavar="PATH",
+                   help="output: NAME.gif, NAME.mp4, NAME.png or DIR/ (numbered PNGs)")
+    p.add_argument("--shader", "-s", metavar="NAME",
+                   help=f"shader (default: the scene's render.shader, else phong): {shaders}")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--duration", "-d", type=_positive_float("duration"), metavar="S",
+                        help=f"seconds of animation (default {DEFAULT_DURATION:g})")
+    length.add_argument("--frames", "-n", type=_positive_int, metavar="N",
+                        help="number of output frames (instead of --duration)")
+    p.add_argument("--fps", type=_positive_float("fps"), metavar="F",
+                   help="output frame rate (default 25 for GIF, PNG and folders; 30 for MP4; "
+                        "at most 50 for GIF)")
+    p.add_argument("--at", type=_nonneg_float, metavar="S",
+                   help="with a .png output: the time in seconds of the frame to write "
+                        "(default: the last output frame)")
+    p.add_argument("--size", type=_size, metavar="WxH",
+                   help="image size in pixels (default: the scene's render size, 512x512)")
+    p.add_argument("--aa", type=_positive_int, metavar="N",
+                   help="anti-aliasing: N x N samples per pixel (default: the scene's, 1)")
+    p.add_argument("--seed", type=_int, metavar="N",
+                   help="random seed (same as --set simulation.seed=N)")
+    p.add_argument("--integrator", metavar="NAME",
+                   help="integrator (same as --set simulation.integrator=NAME)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], type=_override,
+                   metavar="KEY=VALUE",
+                   help="override a scene value, e.g. --set cloth.ks=8000 --set "
+                        "sphere.0.radius=0.3 (repeatable; VALUE is JSON, else a string)")
+    p.add_argument("--export-obj", metavar="DIR",
+                   help="also write one OBJ per output frame into DIR (an 'o' group per object)")
+    p.add_argument("--export-npz", metavar="FILE",
+                   help="also write positions of every output frame, faces, uv and times")
+    p.add_argument("--check", metavar="GOLDEN.png",
+                   help="with a .png output: compare with GOLDEN.png; exit 3 beyond tolerance "
+                        "and write OUT.diff.png beside the output")
+    p.add_argument("--quiet", "-q", action="store_true",
+                   help="no progress bars, warnings or summary line")
+    p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    # Benchmarking switch (hidden): how simulation and rendering share the cores.
+    p.add_argument("--pipeline", choices=("auto", "serial", "overlap", "split"), default="auto",
+                   help=argparse.SUPPRESS)
+    p.add_argument("--version", action="version", version=_version())
+    return p
+
+
+# --------------------------------------------------------------------------- planning
+
+
+@dataclass
+class Plan:
+    kind: str | None  # gif, mp4, png, dir, or None (exports only)
+    out: Path | None
+    fps: float
+    out_times: list[float]  # output frame times (s)
+    sim_frames: list[int]  # simulator frame shown by each output frame
+    sim_fps: float
+    shader: str
+    width: int
+    height: int
+    aa: int
+    overrides: list[str] = field(default_factory=list)
+
+
+def nearest_sim_frames(times: Sequence[Fraction | float], sim_fps: float) -> list[int]:
+    """Simulator frame nearest to each time t: floor(t * sim_fps + 1/2) (ties go later)."""
+    r = Fraction(sim_fps).limit_denominator(1000000)
+    return [math.floor(Fraction(t) * r + Fraction(1, 2)) for t in times]
+
+
+def output_times(n: int, fps: float) -> list[Fraction]:
+    r = Fraction(fps).limit_denominator(1000000)
+    return [Fraction(k) / r for k in range(n)]
+
+
+def _output_kind(args) -> tuple[str | None, Path | None]:
+    """Flag-only checks of the outputs, done before anything is read."""
+    kind = None
+    out = None
+    if args.out is not None:
+        kind, out = outputs.classify_output(args.out)
+    elif not (args.export_obj or args.export_npz):
+        raise UsageError("nothing to write: give --out (and/or --export-obj / --export-npz)")
+    if args.at is not None and kind != "png":
+        raise UsageError("--at needs a .png output")
+    if args.check is not None and kind != "png":
+        raise UsageError("--check needs a .png output")
+    if args.export_npz and Path(args.export_npz).suffix.lower() != ".npz":
+        raise UsageError(f"--export-npz '{args.export_npz}': expected a file name ending in .npz")
+    fps = args.fps if args.fps is not None else DEFAULT_FPS[kind]
+    if kind == "gif" and fps > outputs.GIF_MAX_FPS:
+        raise UsageError(f"--fps {fps:g} is too high for a GIF (delays are counted in 10 ms and "
+                         f"browsers slow delays under 20 ms to 100 ms): use at most "
+                         f"{outputs.GIF_MAX_FPS:g}, or an .mp4")
+    return kind, out
+
+
+def _plan(args, scene) -> Plan:
+    kind, out = _output_kind(args)
+    fps = args.fps if args.fps is not None else DEFAULT_FPS[kind]
+    n = args.frames if args.frames is not None else max(
+        1, round((args.duration if args.duration is not None else DEFAULT_DURATION) * fps))
+    times = output_times(n, fps)
+    if kind == "png":  # one frame: the last output frame, or the one --at names
+        times = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
+                 else times[-1]]
+    sim_fps = float(scene.simulation.frames_per_sec)
+    shader = args.shader if args.shader is not None else scene.render.shader
+    try:
+        names = _shader_names()
+    except Exception:  # noqa: BLE001 - the renderer is needed anyway: fail later, loudly
+        names = None
+    if names is not None and shader not in names:
+        raise UsageError(f"unknown shader {shader!r} (choose from: {', '.join(names)})")
+    width, height = args.size if args.size is not None else (scene.render.width,
+                                                             scene.render.height)
+    aa = args.aa if args.aa is not None else scene.render.aa
+    return Plan(kind=kind, out=out, fps=fps, out_times=[float(t) for t in times],
+                sim_frames=nearest_sim_frames(times, sim_fps), sim_fps=sim_fps, shader=shader,
+                width=int(width), height=int(height), aa=int(aa))
+
+
+def _overrides(args) -> list[str]:
+    ov = list(args.overrides)
+    if args.seed is not None:
+        ov.append(f"simulation.seed={args.seed}")
+    if args.integrator is not None:
+        ov.append(f"simulation.integrator={args.integrator}")
+    return ov
+
+
+# --------------------------------------------------------------------------- running
+
+
+class _Errors:
+    def __init__(self, stream, quiet: bool, debug: bool):
+        self.stream = stream
+        self.quiet = quiet
+        self.debug = debug
+
+    def say(self, msg: str) -> None:
+        print(f"{PROG}: {msg}", file=self.stream, flush=True)
+
+    def warn(self, msg: str) -> None:
+        if not self.quiet:
+            self.say(f"warning: {msg}")
+
+
+def _fmt_bytes(n: int) -> str:
+    for unit in ("B", "KB", "MB", "GB"):
+        if n < 1024 or unit == "GB":
+            return f"{n:.0f} {unit}" if unit == "B" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n} B"
+
+
+class _Timers:
+    def __init__(self):
+        self.simulate = 0.0
+        self.render = 0.0
+        self.encode = 0.0
+
+
+def _open_writers(plan: Plan, args) -> dict:
+    """Create every output's temp file/folder now: proves the paths are writable."""
+    w = {}
+    try:
+        if plan.kind == "gif":
+            w["out"] = outputs.GifWriter(plan.out, fps=plan.fps)
+        elif plan.kind == "mp4":
+            w["out"] = outputs.Mp4Writer(plan.out, fps=plan.fps)
+        elif plan.kind == "png":
+            w["out"] = outputs.PngWriter(plan.out)
+        elif plan.kind == "dir":
+            w["out"] = outputs.FolderWriter(plan.out)
+        if args.export_obj:
+            w["obj"] = outputs.ObjWriter(args.export_obj)
+        if args.export_npz:
+            w["npz"] = outputs.NpzWriter(args.export_npz)
+    except BaseException:
+        for writer in w.values():
+            writer.abort()
+        raise
+    return w
+
+
+def _read_golden(path: str) -> np.ndarray:
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as im:
+            return np.asarray(im.convert("RGB"))
+    except FileNotFoundError:
+        raise UsageError(f"--check: no such file '{path}'") from None
+    except (UnidentifiedImageError, OSError) as exc:
+        raise UsageError(f"--check: cannot read '{path}' as an image ({exc})") from None
+
+
+def _run(args, err: _Errors) -> int:
+    t_wall = time.perf_counter()
+    from .scene import load_scene
+
+    _output_kind(args)
+    golden = _read_golden(args.check) if args.check else None
+    overrides = _overrides(args)
+    with warnings.catch_warnings():
+        # Python warnings (e.g. StabilityWarning) become one line "render: warning: ...".
+        warnings.simplefilter("default")
+        warnings.showwarning = lambda message, category, *a, **k: err.warn(
+            _one_line(message) if str(message).strip() else category.__name__)
+        scene = load_scene(args.scene, overrides)
+        plan = _plan(args, scene)
+        from .frames import render_frame, scene_meshes
+        from .simulation import Simulation
+
+        sim = Simulation(scene)
+        writers = _open_writers(plan, args)
+        try:
+            return _execute(args, err, scene, plan, sim, writers, golden, render_frame,
+                            scene_meshes, t_wall)
+        except BaseException:
+            for writer in writers.values():
+                writer.abort()
+            raise
+
+
+def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_meshes,
+             t_wall) -> int:
+    timers = _Timers()
+    model = sim.model
+    out_w = writers.get("out")
+    obj_w = writers.get("obj")
+    npz_w = writers.get("npz")
+    render_kw = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa)
+    names = None
+
+    def render(pos):
+        t0 = time.perf_counter()
+        img = render_frame(scene, pos, model, **render_kw)
+        timers.render += time.perf_counter() - t0
+        return img
+
+    # Render the initial state before simulating: a missing texture or a broken shader
+    # fails now, not after the simulation, and the renderer's kernels get compiled.
+    first_img = None
+    needs_first = plan.kind is not None and plan.sim_frames[0] == 0
+    if plan.kind is not None:
+        if needs_first:
+            first_img = render(sim.positions.copy())
+        else:
+            t0 = time.perf_counter()
+            render_frame(scene, sim.positions.copy(), model, shader=plan.shader, width=16,
+                         height=16, aa=1)
+            timers.render += time.perf_counter() - t0
+
+    show = progress_enabled(args.quiet)
+    n_out = len(plan.sim_frames)
+    sim_bar = bar(plan.sim_frames[-1], "simulate", "frame", show, 0)
+    out_bar = bar(n_out, "render", "frame", show, 1)
+
+    def consume(k, pos):
+        nonlocal names, first_img
+        if out_w is not None:
+            if k == 0 and first_img is not None:
+                img, first_img = first_img, None
+            else:
+                img = render(pos)
+            t0 = time.perf_counter()
+            out_w.add(img)
+            timers.encode += time.perf_counter() - t0
+        t0 = time.perf_counter()
+        if obj_w is not None:
+            meshes = scene_meshes(scene, pos, model)
+            if names is None:
+                names = outputs.mesh_names(meshes, scene)
+            obj_w.add(meshes, names)
+        if npz_w is not None:
+            npz_w.add(pos)
+        timers.encode += time.perf_counter() - t0
+        out_bar.update(1)
+
+    mode = _pipeline_mode(args.pipeline)
+    try:
+        if mode == "serial":
+            for k, pos in _simulate(sim, plan, timers, sim_bar):
+                consume(k, pos)
+        else:
+            _pipelined(_simulate(sim, plan, timers, sim_bar), consume,
+                       threads_per_stage=1 if mode == "split" else None)
+    finally:
+        sim_bar.close()
+        out_bar.close()
+
+    t0 = time.perf_counter()
+    if npz_w is not None:
+        cloth = scene_meshes(scene, sim.positions.copy(), model)[0]
+        spf = scene.simulation.steps_per_frame
+        npz_w.set_meta(
+            times=np.array(plan.out_times, np.float64),
+            sim_frames=np.array(plan.sim_frames, np.int64),
+            sim_times=np.array([j / plan.sim_fps for j in plan.sim_frames], np.float64),
+            faces=np.asarray(cloth.triangles, np.int32),
+            uv=np.asarray(cloth.uvs, np.float64),
+            grid=np.array([model.nh, model.nw], np.int64),
+            fps=np.float64(plan.fps), sim_fps=np.float64(plan.sim_fps),
+            steps_per_frame=np.int64(spf),
+        )
+    for writer in writers.values():
+        writer.commit()
+    timers.encode += time.perf_counter() - t0
+
+    status = 0
+    if golden is not None:
+        status = _check(args, err, out_w, golden)
+
+    if isinstance(out_w, outputs.Mp4Writer) and out_w.padded:
+        (h, w), (ph, pw) = out_w.shape, out_w.padded_shape
+        err.warn(f"{w}x{h} padded to {pw}x{ph} for H.264 yuv420p (even sizes only; the last "
+                 "row/column is repeated, nothing is rescaled)")
+    if not args.quiet:
+        what = []
+        if out_w is not None:
+            what.append(f"{out_w.target} ({_fmt_bytes(out_w.nbytes)})")
+        for key in ("obj", "npz"):
+            if key in writers:
+                what.append(f"{writers[key].target} ({_fmt_bytes(writers[key].nbytes)})")
+        size = f" {plan.width}x{plan.height} {plan.shader}" if out_w is not None else ""
+        err.say(f"{n_out} frame{'s' if n_out != 1 else ''}{size} -> {', '.join(what)}; "
+                f"simulate {timers.simulate:.2f} s, render {timers.render:.2f} s, "
+                f"encode {timers.encode:.2f} s, total {time.perf_counter() - t_wall:.2f} s")
+    return status
+
+
+def _simulate(sim, plan: Plan, timers: _Timers, sim_bar):
+    """Advance the simulation through the planned frames; yield (k, positions copy)."""
+    current = 0
+    for k, j in enumerate(plan.sim_frames):
+        while current < j:
+            t0 = time.perf_counter()
+            sim.advance(1)
+            timers.simulate += time.perf_counter() - t0
+            current += 1
+            sim_bar.update(1)
+        yield k, sim.positions.copy()
+
+
+DEFAULT_PIPELINE = "split"
+
+
+def _pipeline_mode(requested: str) -> str:
+    """serial, overlap (simulate and render at once, each kernel on all cores) or split
+    (each stage's numba kernels on one thread). Concurrent parallel kernels need a
+    thread-safe numba threading layer (omp, tbb): with workqueue, run serially."""
+    mode = DEFAULT_PIPELINE if requested == "auto" else requested
+    if mode != "serial":
+        try:
+            import numba
+
+            if numba.threading_layer() == "workqueue":
+                return "serial"
+        except (ImportError, ValueError):  # no parallel kernel has run: nothing to fear
+            pass
+    return mode
+
+
+def _pipelined(frames, consume, depth: int = 4, threads_per_stage: int | None = None) -> None:
+    """Simulate in this thread while a worker thread renders and encodes earlier frames.
+
+    Output is identical to the serial order: one worker, frames consumed in order.
+    A bounded queue keeps memory flat; an error in either thread stops both.
+    threads_per_stage: numba threads for each stage's parallel kernels (thread-local).
+    """
+    restore = None
+    if threads_per_stage is not None:
+        import numba
+
+        restore = numba.get_num_threads()
+        numba.set_num_threads(threads_per_stage)
+    try:
+        _run_pipeline(frames, consume, depth, threads_per_stage)
+    finally:
+        if restore is not None:
+            numba.set_num_threads(restore)
+
+
+def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    failure: list[BaseException] = []
+    done = object()
+
+    def worker():
+        if threads_per_stage is not None:
+            import numba
+
+            numba.set_num_threads(threads_per_stage)
+        while True:
+            item = q.get()
+            if item is done or stop.is_set():
+                return
+            try:
+                consume(*item)
+            except BaseException as exc:  # noqa: BLE001 - handed to the main thread
+                failure.append(exc)
+                stop.set()
+                return
+
+    t = threading.Thread(target=worker, name="render-encode", daemon=True)
+    t.start()
+
+    def put(item):
+        while True:
+            if failure:
+                return False
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                if not t.is_alive():
+                    return False
+
+    try:
+        for item in frames:
+            if not put(item):
+                break
+        put(done)
+        t.join()
+    except BaseException:
+        stop.set()
+        try:  # wake the worker and let it finish the frame it is on
+            while True:
+                q.get_nowait()
+        except queue.Empty:
+            pass
+        try:
+            q.put_nowait(done)
+        except queue.Full:
+            pass
+        t.join()
+        raise
+    if failure:
+        raise failure[0]
+
+
+def _check(args, err: _Errors, out_w, golden: np.ndarray) -> int:
+    """Compare the PNG with the golden image; 3 and a diff image beside it when too far."""
+    import inspect
+
+    from shading.testing import assert_image_close
+
+    image = out_w.image
+    diff_path = out_w.target.with_name(out_w.target.stem + ".diff.png")
+    _remove_quietly(diff_path)  # a diff from an earlier failing run would mislead
+    kwargs = {}
+    if "diff_path" in inspect.signature(assert_image_close).parameters:
+        kwargs["diff_path"] = diff_path
+    try:
+        assert_image_close(image, golden, **kwargs)
+    except AssertionError as exc:
+        msg = _one_line(exc) if str(exc).strip() else "images differ"
+        if not diff_path.exists():
+            try:
+                with outputs.PngWriter(diff_path) as dw:
+                    dw.add(outputs.diff_image(image, golden))
+                msg += f"; difference image (x8): {diff_path}"
+            except (OSError, OutputError):
+                pass
+        err.say(f"--check {args.check}: {msg}")
+        return 3
+    return 0
+
+
+def _remove_quietly(path: Path) -> None:
+    try:
+        path.unlink()
+    except OSError:
+        pass
+
+
+# --------------------------------------------------------------------------- main
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `render` console script; returns the exit status."""
+    argv = sys.argv[1:] if argv is None else list(argv)
+    stderr = sys.stderr
+    debug = "--debug" in argv
+    err = _Errors(stderr, quiet=False, debug=debug)
+    try:
+        args = build_parser().parse_args(argv)
+    except UsageError as exc:
+        err.say(str(exc))
+        err.say("try 'render --help'")
+        return 2
+    except SystemExit as exc:  # --help, --version
+        return int(exc.code or 0)
+    err.quiet = args.quiet
+
+    from .scene import SceneError
+    from .simulation import DivergenceError
+
+    try:
+        from shading import TextureError
+    except Exception:  # noqa: BLE001
+        TextureError = OutputError  # noqa: N806 - never raised, keeps the except clause valid
+
+    def fail(status: int, msg: str) -> int:
+        if args.debug:
+            traceback.print_exc(file=stderr)
+        err.say(msg)
+        return status
+
+    try:
+        return _run(args, err)
+    except UsageError as exc:
+        return fail(2, f"{exc}\n{PROG}: try 'render --help'")
+    except (SceneError, OutputError, TextureError) as exc:
+        return fail(2, _one_line(exc))
+    except DivergenceError as exc:
+        return fail(1, _one_line(exc))
+    except KeyboardInterrupt:
+        return fail(130, "interrupted; no output written")
+    except MemoryError:
+        return fail(1, "out of memory; try a smaller --size, --aa or fewer frames")
+    except Exception as exc:  # noqa: BLE001 - the last line of defence
+        hint = "" if args.debug else f"\n{PROG}: run with --debug for the traceback"
+        return fail(1, f"internal error: {type(exc).__name__}: {_one_line(exc)}{hint}")
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+if __name__ == "__main__":  # python -m pipeline.cli
+    sys.exit(main())

@@ -1,0 +1,35 @@
+"""Progress bars on stderr (tqdm), and a no-op bar when they are off."""
+from __future__ import annotations
+
+import sys
+
+
+class _NullBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def progress_enabled(quiet: bool, stream=None) -> bool:
+    """Bars are shown only on an interactive stderr and never with --quiet."""
+    stream = sys.stderr if stream is None else stream
+    if quiet:
+        return False
+    try:
+        return bool(stream.isatty())
+    except (AttributeError, ValueError):
+        return False
+
+
+def bar(total: int, desc: str, unit: str, enabled: bool, position: int = 0):
+    """A tqdm bar with rate and ETA on stderr, or a no-op bar."""
+    if not enabled:
+        return _NullBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, position=position, leave=False,
+                file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
+                bar_format="{desc:<9} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} "
+                           "[{elapsed}<{remaining}, {rate_fmt}]")
