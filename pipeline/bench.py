@@ -57,6 +57,8 @@ COLORS = {"verlet": "C0", "euler": "C3", "symplectic-euler": "C1", "rk4": "C2",
 # --- building runs ------------------------------------------------------------------------
 
 def scene_data(source) -> dict:
+    """The scene's JSON as a dict, after validating it (SceneError names a bad key)."""
+    load_scene(source)
     if isinstance(source, dict):
         return copy.deepcopy(source)
     return json.loads(Path(source).read_text())

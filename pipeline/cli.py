@@ -139,7 +139,11 @@ def build_parser() -> argparse.ArgumentParser:
             "in '/' or an existing folder: numbered PNGs). Output frame k shows the simulated "
             "state at t = k / fps (the simulator frame nearest to t).",
             "Exit status: 0 ok, 1 internal failure or diverging simulation, 2 bad input, "
-            "3 --check beyond tolerance, 130 interrupted."),
+            "3 --check beyond tolerance, 130 interrupted.",
+            "Subcommands: 'render report SCENE.json --out report.html' compares shaders and "
+            "parameter sweeps side by side (also reached with --shader all or an .html "
+            "output; see 'render report --help'); 'render bench SCENE.json --out DIR' charts "
+            "the integrators' accuracy against speed and their stability limits."),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         allow_abbrev=False,
     )
@@ -624,9 +628,39 @@ def _remove_quietly(path: Path) -> None:
 # --------------------------------------------------------------------------- main
 
 
+SUBCOMMANDS = {  # `render NAME ...` runs the module's main(argv)
+    "report": "pipeline.report",  # shaders and parameter sweeps side by side (HTML + PNG)
+    "bench": "pipeline.bench",  # integrators: work-precision and stability charts
+}
+
+
+def _wants_report(argv: Sequence[str]) -> bool:
+    """`render SCENE --shader all ...` or an .html output means `render report`."""
+    pairs = zip(argv, list(argv[1:]) + [""])
+    return any((a in ("--shader", "-s") and b == "all") or a in ("--shader=all", "-sall")
+               or (a in ("--out", "-o") and b.lower().endswith(".html"))
+               or (a.startswith("--out=") and a.lower().endswith(".html")) for a, b in pairs)
+
+
+def _run_subcommand(name: str, argv: Sequence[str]) -> int:
+    import importlib
+
+    from .scene import SceneError
+
+    try:
+        return importlib.import_module(SUBCOMMANDS[name]).main(list(argv))
+    except SceneError as exc:
+        print(f"{PROG}: {_one_line(exc)}", file=sys.stderr)
+        return 2
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `render` console script; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in SUBCOMMANDS:
+        return _run_subcommand(argv[0], argv[1:])
+    if _wants_report(argv):
+        return _run_subcommand("report", argv)
     stderr = sys.stderr
     debug = "--debug" in argv
     err = _Errors(stderr, quiet=False, debug=debug)
