@@ -11,6 +11,8 @@ wireframe shader) are the enabled springs. Mesh names: "cloth", "sphere_0", "pla
 """
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 import shading
@@ -38,23 +40,37 @@ def _cached_edges(model) -> np.ndarray:
     return e
 
 
+@lru_cache(maxsize=64)
+def _collider_mesh(kind: str, a: tuple, b, k: int):
+    """The mesh of a static collider, built once (its arrays are read-only)."""
+    m = shading.sphere_mesh(a, b) if kind == "sphere" else shading.plane_mesh(a, b)
+    m.name = f"{kind}_{k}"
+    for arr in (m.positions, m.normals, m.uvs, m.tangents, m.triangles, m.colour, m.edges):
+        arr.flags.writeable = False
+    return m
+
+
+def _key(v):
+    return tuple(float(x) for x in np.asarray(v, dtype=np.float64).ravel())
+
+
 def scene_meshes(scene: Scene, positions, model) -> list:
-    """[cloth, colliders in scene order] as shading.Mesh objects."""
+    """[cloth, colliders in scene order] as shading.Mesh objects. Collider meshes do not
+    change during a run: they are built once and shared between frames (read-only)."""
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model))
     meshes = [cloth]
     counts = {}
     for c in scene.colliders:
         if isinstance(c, Sphere):
-            m = shading.sphere_mesh(c.origin, c.radius)
+            kind, a, b = "sphere", _key(c.origin), float(c.radius)
         elif isinstance(c, Plane):
-            m = shading.plane_mesh(c.point, c.normal)
+            kind, a, b = "plane", _key(c.point), _key(c.normal)
         else:  # a collider kind the renderer does not know how to draw
             continue
-        k = counts.get(m.name, 0)
-        counts[m.name] = k + 1
-        m.name = f"{m.name}_{k}"
-        meshes.append(m)
+        k = counts.get(kind, 0)
+        counts[kind] = k + 1
+        meshes.append(_collider_mesh(kind, a, b, k))
     return meshes
 
 

@@ -1,5 +1,6 @@
 """Shared numba helpers for fragment shaders: vector maths, two-sided normals,
-Blinn-Phong (SPEC 5) and bump-mapped normals. 3-vectors are tuples (no allocation)."""
+Blinn-Phong (SPEC 5) and bump-mapped normals. 3-vectors are tuples (no allocation).
+All are inlined into the shader kernels that use them."""
 from __future__ import annotations
 
 import math
@@ -21,9 +22,11 @@ def cross(a, b):
 
 @njit(cache=True, inline="always")
 def normalize(a):
+    """a / |a| (one division: within an ulp of dividing each component); 0 stays 0."""
     n = math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
     if n > 0.0:
-        return (a[0] / n, a[1] / n, a[2] / n)
+        r = 1.0 / n
+        return (a[0] * r, a[1] * r, a[2] * r)
     return a
 
 
@@ -51,28 +54,46 @@ def two_sided(n0, v):
     return n0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def powf(x, p):
+    """x ** p; for integral 0 <= p <= 4096 (the usual Phong exponents) by repeated
+    squaring, a few ulps from pow() and several times cheaper."""
+    if p >= 0.0 and p <= 4096.0 and p == math.floor(p):
+        n = int(p)
+        r = 1.0
+        b = x
+        while n:
+            if n & 1:
+                r *= b
+            b *= b
+            n >>= 1
+        return r
+    return x ** p
+
+
+@njit(cache=True, inline="always")
 def light_terms(p, n, v, lp, li):
     """(I / r^2 (rgb tuple), max(0, n.l), max(0, n.h)) for a point light at lp."""
     d = sub(lp, p)
     r2 = dot(d, d)
-    l = normalize(d)
-    h = normalize((l[0] + v[0], l[1] + v[1], l[2] + v[2]))
     inv = 1.0 / r2 if r2 > 0.0 else 0.0
+    ir = math.sqrt(inv)
+    l = (d[0] * ir, d[1] * ir, d[2] * ir)
+    h = normalize((l[0] + v[0], l[1] + v[1], l[2] + v[2]))
     return (li[0] * inv, li[1] * inv, li[2] * inv), max(0.0, dot(n, l)), max(0.0, dot(n, h))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp):
     """k_a I_a + k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p."""
     e, ndl, ndh = light_terms(p, n, v, lp, li)
-    spec = ks * ndh ** pexp
+    spec = ks * powf(ndh, pexp)
     return (ka * ia[0] + kd[0] * e[0] * ndl + spec * e[0],
             ka * ia[1] + kd[1] * e[1] * ndl + spec * e[1],
             ka * ia[2] + kd[2] * e[2] * ndl + spec * e[2])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def bump_normal(n0, t, v, uv, hmap, kh, kn):
     """SPEC 5 bump: TBN from the unflipped n0 and t, height = red channel of hmap,
     forward differences of one texel; the result gets the sign of the two-sided flip."""

@@ -53,14 +53,16 @@ class Mesh:
             self.edges = np.ascontiguousarray(self.edges, dtype=np.int32).reshape(-1, 2)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _normals_tangents(pos, uv, tris, weld_n, weld_t, nrm, tan):
     """Area-weighted vertex normals and Gram-Schmidt tangents, written into nrm, tan.
 
-    weld_n / weld_t map each vertex to the vertex whose sums it shares (identity for
-    the cloth; seam and pole duplicates of the sphere are welded).
+    weld_n / weld_t map each vertex to the vertex whose sums it shares (seam and pole
+    duplicates of the sphere are welded); empty arrays mean the identity (the cloth).
     """
     nv = pos.shape[0]
+    welded_n = weld_n.shape[0] > 0
+    welded_t = weld_t.shape[0] > 0
     accn = np.zeros((nv, 3))
     acct = np.zeros((nv, 3))
     for t in range(tris.shape[0]):
@@ -90,16 +92,16 @@ def _normals_tangents(pos, uv, tris, weld_n, weld_t, nrm, tan):
             tz = (e1z * dv2 - e2z * dv1) / r
         for k in range(3):
             v = tris[t, k]
-            wn = weld_n[v]
+            wn = weld_n[v] if welded_n else v
             accn[wn, 0] += cx
             accn[wn, 1] += cy
             accn[wn, 2] += cz
-            wt = weld_t[v]
+            wt = weld_t[v] if welded_t else v
             acct[wt, 0] += tx
             acct[wt, 1] += ty
             acct[wt, 2] += tz
     for v in range(nv):
-        wn = weld_n[v]
+        wn = weld_n[v] if welded_n else v
         nx = accn[wn, 0]
         ny = accn[wn, 1]
         nz = accn[wn, 2]
@@ -112,7 +114,7 @@ def _normals_tangents(pos, uv, tris, weld_n, weld_t, nrm, tan):
             nx = 0.0
             ny = 0.0
             nz = 1.0
-        wt = weld_t[v]
+        wt = weld_t[v] if welded_t else v
         tx = acct[wt, 0]
         ty = acct[wt, 1]
         tz = acct[wt, 2]
@@ -142,15 +144,17 @@ def _normals_tangents(pos, uv, tris, weld_n, weld_t, nrm, tan):
         tan[v, 2] = tz
 
 
+_NO_WELD = np.zeros(0, np.int64)
+
+
 def normals_tangents(positions, uvs, triangles, weld_n=None, weld_t=None):
     """(normals, tangents) of a triangle mesh per SPEC section 3."""
     positions = np.ascontiguousarray(positions, dtype=np.float64)
     uvs = np.ascontiguousarray(uvs, dtype=np.float64)
     triangles = np.ascontiguousarray(triangles, dtype=np.int32)
     nv = positions.shape[0]
-    ident = np.arange(nv, dtype=np.int64)
-    weld_n = ident if weld_n is None else np.ascontiguousarray(weld_n, dtype=np.int64)
-    weld_t = ident if weld_t is None else np.ascontiguousarray(weld_t, dtype=np.int64)
+    weld_n = _NO_WELD if weld_n is None else np.ascontiguousarray(weld_n, dtype=np.int64)
+    weld_t = _NO_WELD if weld_t is None else np.ascontiguousarray(weld_t, dtype=np.int64)
     nrm = np.empty((nv, 3))
     tan = np.empty((nv, 3))
     _normals_tangents(positions, uvs, triangles, weld_n, weld_t, nrm, tan)

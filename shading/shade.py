@@ -1,68 +1,182 @@
-"""Deferred shading: one generic numba kernel over the visibility buffer.
+"""Deferred shading over the visibility buffer: the shared helpers of every shader's
+fragment stage (SPEC 4-5), all numba, cached, inlined into each shader's kernel.
 
-For every output pixel and each of its aa x aa samples the kernel fetches the primitive
-and barycentrics written by the rasteriser, interpolates position, normal, uv and
-tangent (perspective-correct weights), normalises normal and tangent, computes v and
-calls the shader's fragment function; samples are clamped to [0, 1], box filtered and
-written as 8 bits (round to nearest). Background samples get the background colour.
+Every shader module owns one small cached kernel, its fragment stage, built from these
+helpers and its own colour function `fragment` (see shaders/phong.py):
 
-The fragment is a numba function passed as an argument, so the kernel is specialised
-(and inlined) per shader; numba cannot cache such specialisations on disk, so each
-shader costs one compile (about a second) per process on first use.
+    @njit(**STAGE)
+    def stage(f, g, prm, tex, hmap, cube):
+        for y in range(g, f.height, f.groups):           # the rows of group g
+            x0, x1 = begin_row(f, y)                      # background outside [x0, x1)
+            for x in range(x0, x1):
+                c = ZERO
+                for k in range(f.aa * f.aa):
+                    s = sample(f, y, x, k)
+                    if f.prim[s] < 0:
+                        c = add(c, f.bg)
+                    else:
+                        p, n0, v, uv, t, kd = fetch(f, s)
+                        c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex,
+                                            hmap, cube))
+                put(f, y, x, c)
+
+The renderer runs groups 0 .. f.groups - 1 on as many threads (the GIL is released), so
+each output row has one owner and the image is the same for any number of threads.
+(Not a numba prange: numba's parfor pass mishandles the tuples these helpers use.)
+`f` is a `Frame` (the visibility buffer, the vertex attributes, the light, the output
+image); `fetch` interpolates a sample's inputs: p position, n0 = normalize(interpolated
+normal) (not yet two-sided), v unit vector to the eye, uv, t = normalize(interpolated
+tangent), kd the object colour (perspective-correct weights from the rasteriser);
+`add` clamps a colour to [0, 1] and accumulates it, `put` box filters the aa x aa
+samples of a pixel and writes 8 bits, rounded to nearest. Whatever a colour function
+does not use (say t) is removed by the compiler; `begin_row` also means the background
+costs a fill, not a look-up per sample.
+
+A `Shader` given only a fragment function (no kernel) gets an equivalent kernel from
+`stage_for(fragment)`: compiled once per process, not cached on disk.
 """
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
+import numpy as np
 from numba import njit
 
 from .lighting import normalize
 
+Frame = namedtuple("Frame", [
+    "height", "width", "aa", "groups",  # output size, supersampling, row groups (threads)
+    "prim", "bary",  # visibility buffer: int32 (S,), float32 (S, 2), row-major samples
+    "rowlo", "rowhi",  # int32 (sample rows,): span of samples written per sample row
+    "verts", "obj_of",  # int32 (prims, 3) vertex ids, int32 (prims,) object id
+    "va",  # float64 (V, 12): position 0:3, normal 3:6, uv 6:8, tangent 8:11
+    "kd",  # float64 (objects, 3)
+    "eye", "lp", "li", "bg",  # 3-tuples of float
+    "out",  # uint8 (height, width, 3)
+])
 
-@njit(nogil=True)
-def shade_rows(frag, y0, y1, ystep, W, aa, prim, bary, verts, P, N, UV, TG, obj_of, obj_kd,
-               eye, lp, li, prm, tex, hmap, cube, bg, out):
-    """Shade output rows y0, y0 + ystep, ... < y1 (the GIL is released: the renderer
-    runs interleaved row sets on a thread pool)."""
-    SW = W * aa
+ZERO = (0.0, 0.0, 0.0)
+# Options of every fragment-stage kernel: cached, releases the GIL, no zero-division
+# checks (numpy error model), and floating-point contraction / reassociation /
+# reciprocals (a few ulps; no assumptions about NaN or infinities).
+STAGE = dict(cache=True, nogil=True, error_model="numpy",
+             fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
+
+
+@njit(cache=True, inline="always")
+def sample(f, y, x, k):
+    """Index of sample k (row-major within the pixel) of output pixel (x, y)."""
+    if f.aa == 1:
+        return y * f.width + x
+    return (y * f.aa + k // f.aa) * (f.width * f.aa) + x * f.aa + k % f.aa
+
+
+@njit(cache=True, inline="always")
+def add(c, col):
+    """c + col clamped to [0, 1]."""
+    return (c[0] + min(max(col[0], 0.0), 1.0),
+            c[1] + min(max(col[1], 0.0), 1.0),
+            c[2] + min(max(col[2], 0.0), 1.0))
+
+
+@njit(cache=True, inline="always")
+def put(f, y, x, c):
+    """Box filter of the accumulated samples, 8 bits, round to nearest."""
+    inv = 1.0 / (f.aa * f.aa)
+    f.out[y, x, 0] = int(math.floor(c[0] * inv * 255.0 + 0.5))
+    f.out[y, x, 1] = int(math.floor(c[1] * inv * 255.0 + 0.5))
+    f.out[y, x, 2] = int(math.floor(c[2] * inv * 255.0 + 0.5))
+
+
+@njit(cache=True, inline="always")
+def begin_row(f, y):
+    """Pixels [x0, x1) of output row y that have a written sample; every other pixel of
+    the row is set to the background (as `put` would from aa x aa background samples)."""
+    aa = f.aa
+    lo = f.width * aa
+    hi = -1
+    for sy in range(y * aa, y * aa + aa):
+        lo = min(lo, f.rowlo[sy])
+        hi = max(hi, f.rowhi[sy])
+    if lo > hi:
+        x0 = x1 = f.width
+    else:
+        x0 = lo // aa
+        x1 = hi // aa + 1
+    c = ZERO
+    for k in range(aa * aa):
+        c = add(c, f.bg)
     inv = 1.0 / (aa * aa)
-    for y in range(y0, y1, ystep):
-        for x in range(W):
-            r = 0.0
-            g = 0.0
-            b = 0.0
-            for sy in range(aa):
-                row = (y * aa + sy) * SW + x * aa
-                for sx in range(aa):
-                    s = row + sx
-                    m = prim[s]
-                    if m < 0:
-                        cr, cg, cb = bg
-                    else:
-                        i0 = verts[m, 0]
-                        i1 = verts[m, 1]
-                        i2 = verts[m, 2]
-                        b1 = bary[s, 0]
-                        b2 = bary[s, 1]
-                        b0 = 1.0 - b1 - b2
-                        p = (b0 * P[i0, 0] + b1 * P[i1, 0] + b2 * P[i2, 0],
-                             b0 * P[i0, 1] + b1 * P[i1, 1] + b2 * P[i2, 1],
-                             b0 * P[i0, 2] + b1 * P[i1, 2] + b2 * P[i2, 2])
-                        n0 = normalize((b0 * N[i0, 0] + b1 * N[i1, 0] + b2 * N[i2, 0],
-                                        b0 * N[i0, 1] + b1 * N[i1, 1] + b2 * N[i2, 1],
-                                        b0 * N[i0, 2] + b1 * N[i1, 2] + b2 * N[i2, 2]))
-                        t = normalize((b0 * TG[i0, 0] + b1 * TG[i1, 0] + b2 * TG[i2, 0],
-                                       b0 * TG[i0, 1] + b1 * TG[i1, 1] + b2 * TG[i2, 1],
-                                       b0 * TG[i0, 2] + b1 * TG[i1, 2] + b2 * TG[i2, 2]))
-                        uv = (b0 * UV[i0, 0] + b1 * UV[i1, 0] + b2 * UV[i2, 0],
-                              b0 * UV[i0, 1] + b1 * UV[i1, 1] + b2 * UV[i2, 1])
-                        v = normalize((eye[0] - p[0], eye[1] - p[1], eye[2] - p[2]))
-                        o = obj_of[m]
-                        kd = (obj_kd[o, 0], obj_kd[o, 1], obj_kd[o, 2])
-                        cr, cg, cb = frag(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube)
-                    r += min(max(cr, 0.0), 1.0)
-                    g += min(max(cg, 0.0), 1.0)
-                    b += min(max(cb, 0.0), 1.0)
-            out[y, x, 0] = int(math.floor(r * inv * 255.0 + 0.5))
-            out[y, x, 1] = int(math.floor(g * inv * 255.0 + 0.5))
-            out[y, x, 2] = int(math.floor(b * inv * 255.0 + 0.5))
+    r = np.uint8(math.floor(c[0] * inv * 255.0 + 0.5))
+    g = np.uint8(math.floor(c[1] * inv * 255.0 + 0.5))
+    b = np.uint8(math.floor(c[2] * inv * 255.0 + 0.5))
+    out = f.out
+    for x in range(0, x0):
+        out[y, x, 0] = r
+        out[y, x, 1] = g
+        out[y, x, 2] = b
+    for x in range(x1, f.width):
+        out[y, x, 0] = r
+        out[y, x, 1] = g
+        out[y, x, 2] = b
+    if x0 == f.width:
+        return 0, 0
+    return x0, x1
+
+
+@njit(cache=True, inline="always")
+def fetch(f, s):
+    """(p, n0, v, uv, t, kd) of the covered sample s (f.prim[s] >= 0)."""
+    m = f.prim[s]
+    i0 = f.verts[m, 0]
+    i1 = f.verts[m, 1]
+    i2 = f.verts[m, 2]
+    b1 = np.float64(f.bary[s, 0])
+    b2 = np.float64(f.bary[s, 1])
+    b0 = 1.0 - b1 - b2
+    a = f.va
+    p = (b0 * a[i0, 0] + b1 * a[i1, 0] + b2 * a[i2, 0],
+         b0 * a[i0, 1] + b1 * a[i1, 1] + b2 * a[i2, 1],
+         b0 * a[i0, 2] + b1 * a[i1, 2] + b2 * a[i2, 2])
+    n0 = normalize((b0 * a[i0, 3] + b1 * a[i1, 3] + b2 * a[i2, 3],
+                    b0 * a[i0, 4] + b1 * a[i1, 4] + b2 * a[i2, 4],
+                    b0 * a[i0, 5] + b1 * a[i1, 5] + b2 * a[i2, 5]))
+    uv = (b0 * a[i0, 6] + b1 * a[i1, 6] + b2 * a[i2, 6],
+          b0 * a[i0, 7] + b1 * a[i1, 7] + b2 * a[i2, 7])
+    t = normalize((b0 * a[i0, 8] + b1 * a[i1, 8] + b2 * a[i2, 8],
+                   b0 * a[i0, 9] + b1 * a[i1, 9] + b2 * a[i2, 9],
+                   b0 * a[i0, 10] + b1 * a[i1, 10] + b2 * a[i2, 10]))
+    e = f.eye
+    v = normalize((e[0] - p[0], e[1] - p[1], e[2] - p[2]))
+    o = f.obj_of[m]
+    kd = (f.kd[o, 0], f.kd[o, 1], f.kd[o, 2])
+    return p, n0, v, uv, t, kd
+
+
+_generic: dict = {}
+
+
+def stage_for(fragment):
+    """The fragment stage of a shader given only as a fragment function
+    fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube) -> rgb. Built and
+    compiled once per process (not cached on disk: give the Shader its own kernel)."""
+    st = _generic.get(fragment)
+    if st is None:
+        @njit(**dict(STAGE, cache=False))
+        def st(f, g, prm, tex, hmap, cube):
+            for y in range(g, f.height, f.groups):
+                x0, x1 = begin_row(f, y)
+                for x in range(x0, x1):
+                    c = ZERO
+                    for k in range(f.aa * f.aa):
+                        s = sample(f, y, x, k)
+                        if f.prim[s] < 0:
+                            c = add(c, f.bg)
+                        else:
+                            p, n0, v, uv, t, kd = fetch(f, s)
+                            c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex,
+                                                hmap, cube))
+                    put(f, y, x, c)
+        _generic[fragment] = st
+    return st

@@ -115,10 +115,23 @@ def load_cubemap(folder) -> np.ndarray:
 def clear_cache():
     with _lock:
         _cache.clear()
+        _defaults.clear()
+
+
+_defaults: dict = {}
 
 
 def resolve(kind: str, value):
     """Array for a texture slot: `value` is None (packaged default), a path or an array."""
+    if value is None:  # the packaged defaults: looked up once (no file system per frame)
+        a = _defaults.get(kind)
+        if a is None:
+            a = _defaults[kind] = _resolve(kind, None)
+        return a
+    return _resolve(kind, value)
+
+
+def _resolve(kind: str, value):
     if value is not None and not isinstance(value, (str, Path)):
         a = np.ascontiguousarray(value, dtype=np.float64)
         want = 4 if kind == "cubemap" else 3
@@ -139,11 +152,13 @@ def resolve(kind: str, value):
 @njit(cache=True, inline="always")
 def _texel(i, n, repeat):
     if repeat:
-        return i % n
+        if i < 0 or i >= n:  # (the modulo only when needed: an integer division)
+            return i % n
+        return i
     return min(max(i, 0), n - 1)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def bilinear(img, u, v, repeat):
     """Bilinear sample of img (h, w, 3) at (u, v); repeat=True wraps, False clamps."""
     h = img.shape[0]
@@ -168,7 +183,7 @@ def bilinear(img, u, v, repeat):
     return (r, g, b)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def cube_face_st(d):
     """OpenGL cube-map face selection: (face index posx..negz, s, t) for direction d."""
     x, y, z = d
@@ -186,7 +201,7 @@ def cube_face_st(d):
     return 5, (-x / az + 1.0) * 0.5, (-y / az + 1.0) * 0.5
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def sample_cube(cube, d):
     """Cube map (6, s, s, 3) along direction d: bilinear within the face, clamped."""
     if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:

@@ -11,6 +11,7 @@ from numba import njit
 import shading
 from shading import Camera, Mesh, Renderer, Shader
 from shading.mesh import normals_tangents
+from shading.shade import STAGE, ZERO, add, begin_row, fetch, put, sample
 
 
 @njit(cache=True)
@@ -18,7 +19,32 @@ def _flat(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
     return kd
 
 
-FLAT = Shader("flat", _flat)
+FLAT = Shader("flat", _flat)  # fragment only: the renderer builds its stage
+
+
+@njit(cache=True, inline="always")
+def _flat_colour(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+    return kd
+
+
+@njit(**STAGE)
+def _flat_stage(f, g, prm, tex, hmap, cube):
+    for y in range(g, f.height, f.groups):
+        x0, x1 = begin_row(f, y)
+        for x in range(x0, x1):
+            c = ZERO
+            for k in range(f.aa * f.aa):
+                s = sample(f, y, x, k)
+                if f.prim[s] < 0:
+                    c = add(c, f.bg)
+                else:
+                    p, n0, v, uv, t, kd = fetch(f, s)
+                    c = add(c, _flat_colour(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
+                                            cube))
+            put(f, y, x, c)
+
+
+FLAT_STAGED = Shader("flat", _flat_colour, stage=_flat_stage)
 
 
 def quad(z=0.0, half=1.0, flip=False, colour=(1, 1, 1), nx=2, ny=2):
@@ -233,3 +259,106 @@ def test_near_plane_clipping_and_background():
     assert img.shape == (32, 32, 3) and img.max() == 255
     empty = shading.render([], cam, None, "phong", {"background": (0.2, 0.25, 0.3)})
     assert tuple(empty[0, 0]) == (51, 64, 77)
+
+
+def _scene_meshes():
+    nw = nh = 20
+    j = np.tile(np.arange(nw, dtype=float), nh)
+    i = np.repeat(np.arange(nh, dtype=float), nw)
+    pos = np.stack([j / (nw - 1), 1.0 + 0.1 * np.sin(j / 3.0) * np.cos(i / 4.0),
+                    i / (nh - 1)], axis=1)
+    return [shading.cloth_mesh(pos, nw, nh, edges=np.array([[0, 1], [1, 21], [5, 300]])),
+            shading.sphere_mesh((0.5, 0.2, 0.5), 0.2)], pos
+
+
+@pytest.mark.parametrize("aa", [1, 2])
+def test_image_independent_of_thread_count(aa):
+    meshes, pos = _scene_meshes()
+    cam = Camera.default_for_cloth(pos, 1.0, 1.0, width=61, height=47)
+    for sh in shading.SHADERS:
+        imgs = []
+        for threads in (1, 2, 3, 7):
+            r = Renderer(61, 47, aa)
+            r.threads = threads
+            imgs.append(r.render(meshes, cam, None, sh).copy())
+        for img in imgs[1:]:
+            np.testing.assert_array_equal(img, imgs[0], err_msg=f"{sh} aa={aa}")
+
+
+def test_reused_renderer_matches_fresh_one():
+    """Buffers are cleared only where the previous frame wrote: a reused renderer must
+    give exactly what a new one gives, whatever was drawn before (bigger or smaller
+    objects, lines then triangles, coverage counting on and off)."""
+    meshes, pos = _scene_meshes()
+    cam = Camera.default_for_cloth(pos, 1.0, 1.0, width=50, height=40)
+    near = Camera((0.5, 0.5, 1.2), (0.5, 0.5, 0.5), width=50, height=40)
+    r = Renderer(50, 40, 2)
+    sequence = [(meshes, near, "phong", False), (meshes[:1], cam, "normal", True),
+                (meshes, cam, "wireframe", False), ([], cam, "phong", False),
+                (meshes[1:], cam, "toon", True), (meshes, near, "wireframe", True),
+                (meshes, cam, "diffuse", False)]
+    for ms, c, sh, cnt in sequence:
+        got = r.render(ms, c, None, sh, count_coverage=cnt).copy()
+        want = Renderer(50, 40, 2).render(ms, c, None, sh)
+        np.testing.assert_array_equal(got, want, err_msg=sh)
+
+
+def test_custom_shader_with_its_own_cached_stage():
+    # a shader module's pattern (shade.py): a colour function plus the few-line stage
+    cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), width=32, height=32)
+    near, far = quad(z=0.5, half=0.5, colour=(0, 1, 0)), quad(z=-0.5, colour=(1, 0, 0))
+    a = shading.render([near, far], cam, None, FLAT_STAGED)
+    b = shading.render([near, far], cam, None, FLAT)  # stage built from the fragment
+    np.testing.assert_array_equal(a, b)
+    assert tuple(a[16, 16]) == (0, 255, 0) and tuple(a[2, 16]) == (255, 0, 0)
+    assert FLAT_STAGED.stage.stats.cache_hits or FLAT_STAGED.stage.stats.cache_misses
+
+
+_STARTUP = """
+import numpy as np, shading
+from shading import mesh, raster, renderer
+from shading.shaders import REGISTRY, displacement
+j = np.tile(np.arange(6.0), 6); i = np.repeat(np.arange(6.0), 6)
+pos = np.stack([j / 5, np.ones(36), i / 5], axis=1)
+cam = shading.Camera.default_for_cloth(pos, 1, 1, width=16, height=12)
+ms = [shading.cloth_mesh(pos, 6, 6, np.array([[0, 1]])), shading.sphere_mesh((0.5, 0.2, 0.5), 0.2)]
+for name in shading.SHADERS:
+    shading.render(ms, cam, None, name)
+kernels = [raster.project, raster.setup_triangles, raster.setup_lines, raster.bin_prims,
+           raster.raster_triangles, raster.raster_lines, mesh._normals_tangents,
+           renderer._pack_vertices, renderer._pack_prims, displacement._displace]
+kernels += [sh.stage for sh in REGISTRY.values()]
+print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hits) for k in kernels))
+"""
+
+
+def test_new_process_loads_every_kernel_from_the_disk_cache():
+    """Start-up: every numba kernel the renderer runs is cached on disk (no first-class
+    function arguments), so a new process loads them all and compiles nothing."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    root = str(Path(__file__).resolve().parent.parent)
+    run = lambda: subprocess.run([sys.executable, "-c", _STARTUP], cwd=root, check=True,  # noqa: E731
+                                 capture_output=True, text=True).stdout.split()
+    run()  # fills the cache if this is the first use
+    misses, hits = (int(v) for v in run())
+    assert misses == 0 and hits > 0
+
+
+def test_reuse_after_a_bigger_mesh_with_many_clipped_triangles():
+    """Extra vertex slots made by clipping, in a renderer whose buffers were grown by a
+    bigger mesh before (regression: the slots' weights must have room too)."""
+    cam = Camera((0.0, 0.0, 0.5), (0.0, 0.0, 0.0), width=40, height=30)
+    r = Renderer(40, 30)
+    big = quad(z=-3.0, half=1.0, nx=100, ny=100)
+    r.render([big], cam, None, "normal")
+    # ~3000 extra vertex slots: more than the old sizing gave their weights
+    crossing = quad(z=0.0, half=0.2, nx=60, ny=60)  # most triangles cross the near plane
+    rng = np.random.default_rng(3)
+    crossing.positions[:, 2] = 0.49 + rng.uniform(-0.3, 0.3, len(crossing.positions))
+    for sh in ("normal", "wireframe", "normal"):
+        got = r.render([crossing], cam, None, sh).copy()
+        want = Renderer(40, 30).render([crossing], cam, None, sh)
+        np.testing.assert_array_equal(got, want, err_msg=sh)
+        assert got.any()

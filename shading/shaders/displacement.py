@@ -1,16 +1,16 @@
 """displacement: every vertex moves to p + n h(uv) k_h before projection; fragments are
 shaded as bump at the displaced position with the undisplaced normal and tangent."""
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from ..textures import bilinear
 from . import Shader
-from .bump import K_H, PARAMS, fragment
+from .bump import K_H, PARAMS, fragment, stage
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True)
 def _displace(pos, nrm, uvs, kh, hmap, out):
-    for i in prange(pos.shape[0]):
+    for i in range(pos.shape[0]):
         h = bilinear(hmap, uvs[i, 0], uvs[i, 1], True)[0] * kh
         for k in range(3):
             out[i, k] = pos[i, k] + nrm[i, k] * h
@@ -24,4 +24,4 @@ def vertex(positions, normals, uvs, prm, hmap, out=None):
 
 
 SHADER = Shader("displacement", fragment, PARAMS, vertex=vertex, textures=("height_map",),
-                doc=__doc__)
+                doc=__doc__, stage=stage)  # fragments shaded exactly as bump

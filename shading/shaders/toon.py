@@ -5,7 +5,8 @@ import math
 
 from numba import njit
 
-from ..lighting import dot, normalize, sub, two_sided
+from ..lighting import dot, normalize, powf, sub, two_sided
+from ..shade import STAGE, ZERO, add, begin_row, fetch, put, sample
 from . import Shader, param_offsets
 
 PARAMS = {"levels": 4.0, "ambient": 0.15, "diffuse": 0.85, "p": 100.0,
@@ -13,16 +14,33 @@ PARAMS = {"levels": 4.0, "ambient": 0.15, "diffuse": 0.85, "p": 100.0,
 LEVELS, AMB, DIF, P_EXP, THR, SPEC, OUTL, OUTF = param_offsets(PARAMS)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
     n = two_sided(n0, v)
     l = normalize(sub(lp, p))
     h = normalize((l[0] + v[0], l[1] + v[1], l[2] + v[2]))
     q = math.ceil(prm[LEVELS] * max(0.0, dot(n, l))) / prm[LEVELS]
-    s = prm[SPEC] if max(0.0, dot(n, h)) ** prm[P_EXP] > prm[THR] else 0.0
+    s = prm[SPEC] if powf(max(0.0, dot(n, h)), prm[P_EXP]) > prm[THR] else 0.0
     f = prm[OUTF] if dot(n, v) < prm[OUTL] else 1.0
     a = prm[AMB] + prm[DIF] * q
     return ((kd[0] * a + s) * f, (kd[1] * a + s) * f, (kd[2] * a + s) * f)
 
 
-SHADER = Shader("toon", fragment, PARAMS, doc=__doc__)
+@njit(**STAGE)
+def stage(f, g, prm, tex, hmap, cube):
+    """The fragment stage (see shade.py) of output rows g, g + f.groups, ..."""
+    for y in range(g, f.height, f.groups):
+        x0, x1 = begin_row(f, y)
+        for x in range(x0, x1):
+            c = ZERO
+            for k in range(f.aa * f.aa):
+                s = sample(f, y, x, k)
+                if f.prim[s] < 0:
+                    c = add(c, f.bg)
+                else:
+                    p, n0, v, uv, t, kd = fetch(f, s)
+                    c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap, cube))
+            put(f, y, x, c)
+
+
+SHADER = Shader("toon", fragment, PARAMS, doc=__doc__, stage=stage)
