@@ -37,29 +37,41 @@ def candidate_mask(n: int) -> tuple[np.ndarray, np.ndarray]:
     return np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _flag_long(x, off, limit_sq_lo_d, long_d, lo, hi):
+    """long_d[p] = spring (d, p) may be longer than its limit, for p in [lo, hi)."""
+    start = min(max(lo, -off), hi)
+    long_d[lo:start] = False
+    ax, ay, az = x[0, start:hi], x[1, start:hi], x[2, start:hi]
+    bx, by, bz = x[0, start + off:hi + off], x[1, start + off:hi + off], x[2, start + off:hi + off]
+    lim, out = limit_sq_lo_d[start:hi], long_d[start:hi]
+    for i in range(hi - start):  # sliced, counter from 0: vectorises (see forces.py)
+        dx = bx[i] - ax[i]
+        dy = by[i] - ay[i]
+        dz = bz[i] - az[i]
+        out[i] = dx * dx + dy * dy + dz * dz > lim[i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pack_mask(long, exist_bits, mask, lo, hi):
+    l0, l1, l2, l3, l4, l5 = (long[0, lo:hi], long[1, lo:hi], long[2, lo:hi], long[3, lo:hi],
+                              long[4, lo:hi], long[5, lo:hi])
+    bits, out = exist_bits[lo:hi], mask[lo:hi]
+    for i in range(hi - lo):
+        out[i] = (np.uint8(l0[i]) | (np.uint8(l1[i]) << 1) | (np.uint8(l2[i]) << 2)
+                  | (np.uint8(l3[i]) << 3) | (np.uint8(l4[i]) << 4)
+                  | (np.uint8(l5[i]) << 5)) & bits[i]
+
+
 @njit(cache=True, nogil=True, parallel=True)
 def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch):
     mask, long = scratch
     n = x.shape[1]
-    x0, x1, x2 = x[0], x[1], x[2]  # 1-D rows and plain bool stores: these loops vectorise
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
-            off = offsets[d]
-            lim_d, long_d = limit_sq_lo[d], long[d]
-            start = min(max(lo, -off), hi)
-            long_d[lo:start] = False
-            for p in range(start, hi):
-                q = p + off
-                dx = x0[q] - x0[p]
-                dy = x1[q] - x1[p]
-                dz = x2[q] - x2[p]
-                long_d[p] = dx * dx + dy * dy + dz * dz > lim_d[p]
-        for p in range(lo, hi):
-            bits = (np.uint8(long[0, p]) | (np.uint8(long[1, p]) << 1)
-                    | (np.uint8(long[2, p]) << 2) | (np.uint8(long[3, p]) << 3)
-                    | (np.uint8(long[4, p]) << 4) | (np.uint8(long[5, p]) << 5))
-            mask[p] = bits & exist_bits[p]
+            _flag_long(x, offsets[d], limit_sq_lo[d], long[d], lo, hi)
+        _pack_mask(long, exist_bits, mask, lo, hi)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -74,7 +86,7 @@ def _mark_after(r, p, d, offsets, exist_bits, mask):
             mask[s] |= exist_bits[s] & (np.uint8(1) << np.uint8(e))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
 

@@ -79,7 +79,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         collider_kinds=kinds,
         collider_params=params,
         self_collision=scene.self_collision,
-        scratch=SelfCollisionScratch(model.n).as_tuple(),
+        scratch=SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple(),
         spring_force=spring_force_buffer(model.n, model.nw),
         mask=candidate_mask(model.n),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision),

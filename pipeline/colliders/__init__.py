@@ -50,6 +50,8 @@ def collide_point(kinds, params, x, y, z, lx, ly, lz):
 @njit(cache=True, nogil=True)
 def collide_all(x, last, pinned, kinds, params):
     """Apply the colliders to every free point of x (3, N)."""
+    if kinds.shape[0] == 0:
+        return
     for p in range(x.shape[1]):
         if pinned[p]:
             continue
