@@ -67,13 +67,13 @@ def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
-    """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
+def _gather(spring_force, offsets, order, wx, wy, wz, f, lo, hi):
+    """f[:, lo:hi] = (wx, wy, wz) + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
     m = hi - lo
     for a in range(3):
         out = f[a, lo:hi]
-        w = mass * gravity[a]
+        w = wx if a == 0 else (wy if a == 1 else wz)
         for i in range(m):
             out[i] = w
         for d in range(6):
@@ -105,7 +105,8 @@ def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spr
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        _gather(spring_force, offsets, order, mass, gravity, f, lo, hi)
+        _gather(spring_force, offsets, order, mass * gravity[0], mass * gravity[1],
+                mass * gravity[2], f, lo, hi)
 
 
 # --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------
@@ -205,9 +206,7 @@ def spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, o
                 buffer[d, 2, p] = (k - a) * along * uz + a * rz
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        for a in range(3):
-            for p in range(lo, hi):
-                out[a, p] = gathered_force(p, a, 0.0, buffer, offsets, order)
+        _gather(buffer, offsets, order, 0.0, 0.0, 0.0, out, lo, hi)
 
 
 @njit(cache=True, nogil=True)
