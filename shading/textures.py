@@ -29,12 +29,13 @@ _lock = threading.Lock()
 
 
 def packaged_textures_dir() -> Path:
-    """Folder of the packaged default textures (`shading.textures`, i.e. `textures/`)."""
+    """Folder of the packaged default textures: the repository's `textures/`, installed as
+    the data package `shading.default_textures` (see pyproject.toml)."""
     try:
         from importlib.resources import files
-        p = files("shading.textures")
-        return Path(str(p))
-    except (ModuleNotFoundError, TypeError):
+
+        return Path(str(files("shading.default_textures")))
+    except ModuleNotFoundError:  # running from a source tree that was never installed
         return Path(__file__).resolve().parent.parent / "textures"
 
 

@@ -22,3 +22,12 @@ def test_every_package_directory_is_listed_in_pyproject():
     for name, folder in mapped.items():
         assert (folder / "__init__.py").exists(), f"{name} -> {folder} is not a package"
     assert listed <= found | set(mapped), f"listed but absent: {sorted(listed - found)}"
+
+
+def test_no_mapped_package_shadows_a_module():
+    """`shading.textures` as a mapped data package once hid the module shading/textures.py
+    in installed copies (the source tree never shows it)."""
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    for name in config.get("package-dir", {}):
+        module_file = ROOT.joinpath(*name.split(".")).with_suffix(".py")
+        assert not module_file.exists(), f"package {name} would shadow {module_file}"
