@@ -87,10 +87,6 @@ class ClothModel:
         """Whether each spring (in list order) exerts a force."""
         return np.array(self.spring_enabled_by_type)[self.spring_type]
 
-    @property
-    def spring_stiffness(self) -> np.ndarray:
-        return self.stiffness[self.spring_d]
-
 
 def initial_grid(scene: Scene) -> np.ndarray:
     """Initial positions (3, N) per SPEC section 2 (vertical cloth jittered in z by the seed)."""

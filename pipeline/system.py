@@ -12,12 +12,12 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .colliders import pack_colliders
-from .constraints import candidate_mask, existence_bits, stretch_limits
+from .colliders import collide_all, pack_colliders
+from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
 from .forces import direction_offsets, gather_order, spring_force_buffer
-from .model import ClothModel
+from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .scene import Scene
-from .self_collision import SelfCollisionScratch
+from .self_collision import SelfCollisionScratch, self_collide
 
 
 class System(NamedTuple):
@@ -149,8 +149,6 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     8 ks / m at theta = (pi, 0)). Damped Verlet x' = x + (1 - c)(x - x_last) + a dt^2 is stable
     for omega dt < sqrt(2 (2 - c)), i.e. dt_max = sqrt(2 (2 - c)) / omega_max (~ 2 / omega_max).
     """
-    from .model import DIRECTION_DI, DIRECTION_DJ
-
     sx = model.width / (model.nw - 1)
     sy = model.height / (model.nh - 1)
     tx = np.linspace(0.0, math.pi, samples)
@@ -172,11 +170,7 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     return omega_max, math.sqrt(2.0 * (2.0 - model.damping)) / omega_max
 
 
-# --- shared passes of the integrators other than Verlet (issue 6) -------------------------
-
-from .colliders import collide_all  # noqa: E402
-from .constraints import limit_stretch  # noqa: E402
-from .self_collision import self_collide  # noqa: E402
+# --- passes and guard shared by every integrator --------------------------------------------
 
 
 @njit(cache=True, nogil=True)

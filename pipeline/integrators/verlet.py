@@ -8,11 +8,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..colliders import collide_all
-from ..constraints import limit_stretch
 from ..forces import CHUNKS, _chunk, spring_forces
-from ..self_collision import self_collide
-from ..system import System, energy_guard, motion_summary
+from ..system import System, position_passes, step_guard
 
 NAME = "verlet"
 CONDITIONALLY_STABLE = True
@@ -66,13 +63,8 @@ def advance(s, x, last, force, steps):
         spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
                       s.gravity, s.spring_force, force)
         _update_all(x, last, force, s.pinned, s.mass, keep, dt2)
-        if s.self_collision:
-            self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
-                         s.steps_per_frame, s.scratch)
-        collide_all(x, last, s.pinned, s.collider_kinds, s.collider_params)
-        limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
-        finite, v_sq, drop = motion_summary(x, last, s)
-        kinetic, bound = energy_guard(v_sq / dt2, drop, s)
-        if not finite or not kinetic <= bound:
+        position_passes(x, last, s)
+        ok, kinetic, bound = step_guard(x, last, s)
+        if not ok:
             return step + 1, kinetic, bound
     return steps, kinetic, bound
