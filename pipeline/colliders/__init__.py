@@ -4,7 +4,8 @@ A collider kind is one module in this package defining:
     KIND: int           its code in the packed table,
     SCENE_TYPE: type    the scene dataclass it packs,
     pack(obj) -> np.ndarray   its parameters as floats (at most PARAMS_WIDTH),
-    project(params, x, y, z, lx, ly, lz) -> (x, y, z)   an @njit point projection.
+    project(params, c, x, y, z, lx, ly, lz) -> (x, y, z)   an @njit point projection
+                        reading its parameters from row c of the packed table.
 The packed table (kinds, params) lists the scene's colliders in scene order, and
 `collide_point` applies them in that order to one point. Adding a kind: its module, plus its
 entry in `_KINDS` and one branch in `collide_point` (numba compiles static dispatch only).
@@ -41,9 +42,9 @@ def collide_point(kinds, params, x, y, z, lx, ly, lz):
     for c in range(kinds.shape[0]):
         kind = kinds[c]
         if kind == sphere.KIND:
-            x, y, z = sphere.project(params[c], x, y, z, lx, ly, lz)
+            x, y, z = sphere.project(params, c, x, y, z, lx, ly, lz)
         elif kind == plane.KIND:
-            x, y, z = plane.project(params[c], x, y, z, lx, ly, lz)
+            x, y, z = plane.project(params, c, x, y, z, lx, ly, lz)
     return x, y, z
 
 

@@ -27,9 +27,9 @@ def _sign(v):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def project(params, x, y, z, lx, ly, lz):
-    px, py, pz = params[0], params[1], params[2]
-    nx, ny, nz, friction = params[3], params[4], params[5], params[6]
+def project(params, c, x, y, z, lx, ly, lz):
+    px, py, pz = params[c, 0], params[c, 1], params[c, 2]
+    nx, ny, nz, friction = params[c, 3], params[c, 4], params[c, 5], params[c, 6]
     s_now = (x - px) * nx + (y - py) * ny + (z - pz) * nz
     s_last = (lx - px) * nx + (ly - py) * ny + (lz - pz) * nz
     side_now, side_last = _sign(s_now), _sign(s_last)

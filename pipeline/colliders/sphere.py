@@ -15,8 +15,9 @@ def pack(s: Sphere) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
-def project(params, x, y, z, lx, ly, lz):
-    ox, oy, oz, r, friction = params[0], params[1], params[2], params[3], params[4]
+def project(params, c, x, y, z, lx, ly, lz):
+    ox, oy, oz = params[c, 0], params[c, 1], params[c, 2]
+    r, friction = params[c, 3], params[c, 4]
     dx, dy, dz = x - ox, y - oy, z - oz
     dist = np.sqrt(dx * dx + dy * dy + dz * dz)
     if dist <= r and dist > 0.0:
