@@ -1,13 +1,22 @@
 """Simulator benchmark: our numba kernels beside the C++ reference, in one run.
 
-    python benchmarks/sim.py            # all cases
-    python benchmarks/sim.py --quick    # fewer repeats
+    python benchmarks/sim.py             # all cases
+    python benchmarks/sim.py --quick     # fewer repeats
+    python benchmarks/sim.py --features  # only the wind and mesh-collider cases (fast)
 
 Per case: numba compile time (first call in a process with an empty cache, minus a warm call),
 steps per second and seconds per simulated second (best of several runs, warm), the C++
 reference's seconds on the same case and the time ratio ours / C++. Then cold and warm start
 to the first frame (fresh processes) and the peak resident memory of `simulate` on 200x200
 for 90 frames against the size of the returned array.
+
+Feature cases (FEATURE_CASES, run in the same process, timed in alternation so that a busy
+machine slows every variant alike; the C++ reference has neither feature): the pinned2 50x50
+scene without wind, in a steady wind and in a gusty wind (cost of the aerodynamic forces per
+step; target: wind at most 1.3x the step without), and the sphere 50x50 scene with its
+analytic sphere against the same sphere as a 5120-triangle mesh collider
+(scenes/meshes/icosphere5k.obj scaled to the sphere; target: at most 2x per step), plus the
+one-off time to build the mesh's distance grid.
 """
 from __future__ import annotations
 
@@ -28,6 +37,32 @@ CASES = [  # (label, scene file, grid size or None for the file's own)
     ("pinned2 200x200", "pinned2.json", 200),
     ("sphere 50x50", "sphere.json", None),
     ("selfCollision 50x50", "selfCollision.json", None),
+]
+STEADY_WIND = {"velocity": [1.5, 0.0, 3.0]}
+GUSTY_WIND = {"velocity": [1.5, 0.0, 3.0], "gust": 1.5, "gust_scale": 0.5, "gust_time": 0.5}
+WIND_TARGET, MESH_TARGET = 1.3, 2.0  # per-step cost ratios the features should stay within
+
+
+def with_wind(raw: dict, wind: dict) -> dict:
+    return dict(raw, wind=wind)
+
+
+def sphere_as_mesh(raw: dict) -> dict:
+    """The scene with its sphere replaced by the icosphere mesh scaled to the same sphere."""
+    out = {k: v for k, v in raw.items() if k != "sphere"}
+    sphere = raw["sphere"]
+    out["mesh"] = {"path": str(ROOT / "scenes" / "meshes" / "icosphere5k.obj"),
+                   "translation": sphere["origin"], "scale": sphere["radius"],
+                   "friction": sphere["friction"]}
+    return out
+
+
+FEATURE_CASES = [  # (label, scene file, change of the scene); each group's first is its base
+    ("pinned2 50x50", "pinned2.json", None),
+    ("  + steady wind", "pinned2.json", lambda raw: with_wind(raw, STEADY_WIND)),
+    ("  + gusty wind", "pinned2.json", lambda raw: with_wind(raw, GUSTY_WIND)),
+    ("sphere 50x50", "sphere.json", None),
+    ("  icosphere5k mesh", "sphere.json", sphere_as_mesh),
 ]
 
 
@@ -58,6 +93,51 @@ def time_ours(raw: dict, repeats: int) -> tuple[float, int]:
         sim.advance(frames)
         best = min(best, time.perf_counter() - t0)
     return best, frames * scene.simulation.steps_per_frame
+
+
+def time_alternating(raws: list[dict], repeats: int) -> list[tuple[float, int, float]]:
+    """(best wall time of one simulated second, steps, first Simulation() seconds) of each
+    scene, warm; the runs alternate between the scenes so that load from other processes
+    hits every scene alike."""
+    from pipeline import Simulation, load_scene
+
+    scenes = [load_scene(raw) for raw in raws]
+    setup = []
+    for scene in scenes:
+        t0 = time.perf_counter()
+        sim = Simulation(scene)  # builds a mesh's distance grid (cached for later runs)
+        setup.append(time.perf_counter() - t0)
+        sim.advance(1)  # compile / load from cache
+    best = [float("inf")] * len(scenes)
+    for _ in range(repeats):
+        for k, scene in enumerate(scenes):
+            sim = Simulation(scene)
+            t0 = time.perf_counter()
+            sim.advance(int(round(scene.simulation.frames_per_sec)))
+            best[k] = min(best[k], time.perf_counter() - t0)
+    return [(b, int(round(sc.simulation.frames_per_sec)) * sc.simulation.steps_per_frame, st)
+            for b, sc, st in zip(best, scenes, setup)]
+
+
+def feature_cases(repeats: int) -> None:
+    """The wind and mesh-collider cases, with their per-step ratios to the plain scenes."""
+    raws = [change(scene_dict(file, None)) if change else scene_dict(file, None)
+            for _, file, change in FEATURE_CASES]
+    results = time_alternating(raws, repeats)
+    per_step = {}
+    for (label, _, _), (ours, steps, setup) in zip(FEATURE_CASES, results):
+        per_step[label] = ours / steps
+        print(f"{label:22s} {float('nan'):9.2f} {steps / ours:9.0f} {ours:8.3f} {'n/a':>7s} "
+              f"{'n/a':>6s} {ours / steps * 1e6:8.1f}")
+    base = per_step["pinned2 50x50"]
+    for label in ("  + steady wind", "  + gusty wind"):
+        ratio = per_step[label] / base
+        print(f"per step, pinned2 50x50 {label.strip()[2:]} / no wind: {ratio:.2f}x "
+              f"(target <= {WIND_TARGET:g}x{'' if ratio <= WIND_TARGET else ': MISSED'})")
+    ratio = per_step["  icosphere5k mesh"] / per_step["sphere 50x50"]
+    print(f"per step, sphere 50x50 icosphere5k mesh / analytic sphere: {ratio:.2f}x "
+          f"(target <= {MESH_TARGET:g}x{'' if ratio <= MESH_TARGET else ': MISSED'}); "
+          f"the mesh's distance grid took {results[-1][2]:.2f} s to build")
 
 
 def time_reference(raw: dict, repeats: int) -> float | None:
@@ -127,6 +207,9 @@ def peak_memory_200() -> tuple[float, float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1 repeat instead of 3")
+    ap.add_argument("--features", action="store_true",
+                    help="only the wind and mesh-collider cases (no course cases, start-up or "
+                         "memory figures)")
     args = ap.parse_args()
     repeats = 1 if args.quick else 3
     import numba
@@ -135,6 +218,9 @@ def main() -> None:
           f"cores {os.cpu_count()}")
     print(f"{'case':22s} {'compile s':>9s} {'steps/s':>9s} {'s/sim s':>8s} {'C++ s':>7s} "
           f"{'ratio':>6s} {'us/step':>8s}")
+    if args.features:
+        feature_cases(repeats)
+        return
     per_step = {}
     for label, file, size in CASES:
         raw = scene_dict(file, size)
@@ -151,6 +237,7 @@ def main() -> None:
           f"(16x the points)")
     print(f"per step, selfCollision / pinned2 (50x50): "
           f"{per_step['selfCollision 50x50'] / base:.2f}x")
+    feature_cases(repeats)
     with tempfile.TemporaryDirectory() as cache:
         cold = start_to_first_frame(cache)
         warm = start_to_first_frame(cache)

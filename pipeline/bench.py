@@ -105,16 +105,16 @@ class Run:
             self.state.last[:] = self.state.x
         if integrator == "verlet" and not classic_start:
             force = np.zeros_like(self.state.x)
-            total_force(self.state.x, system, force)
+            total_force(self.state.x, np.zeros_like(force), 0.0, system, force)
             free = system.pinned == 0
             h2 = system.dt * system.dt
             # x_-1 = x0 - v0 dt + a0 dt^2 / 2 with v0 = 0
-            self.state.last[:, free] = self.state.x[:, free] + (0.5 * h2 / system.mass) * \
+            self.state.last[:, free] = self.state.x[:, free] + (0.5 * h2 / system.mass[free]) * \
                 force[:, free]
 
     def advance(self, steps: int) -> bool:
         """Advance; False when the divergence guard tripped."""
-        done, kinetic, _ = self.state.advance(self.system, steps)
+        done, kinetic, _ = self.state.advance(self.system, steps, self.steps)
         self.steps += done
         return done == steps and math.isfinite(kinetic)
 
@@ -126,9 +126,9 @@ class Run:
         """Kinetic + spring potential + gravity potential (J)."""
         s = self.system
         v = self.state.velocity(s)
-        kinetic = 0.5 * s.mass * float(np.sum(v * v))
+        kinetic = 0.5 * float(np.sum(s.mass * v * v))
         potential = spring_energy(self.state.x, s.offsets, s.exists, s.rest, s.stiffness)
-        gravity = -s.mass * float(np.sum(s.gravity[:, None] * self.state.x))
+        gravity = -float(np.sum(s.mass * s.gravity[:, None] * self.state.x))
         return kinetic + potential + gravity
 
     def probe_strain(self, compression: bool = False) -> float:
@@ -139,7 +139,7 @@ class Run:
         s = self.system
         free = s._replace(limit=s.limit * 1e6, limit_sq_lo=s.limit_sq_lo * 1e12,
                           spring_force=s.spring_force.copy())
-        state.advance(free, 1)
+        state.advance(free, 1, self.steps)
         x = state.x
         n = x.shape[1]
         strains = []

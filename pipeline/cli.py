@@ -382,9 +382,9 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     render_kw = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa)
     names = None
 
-    def render(pos):
+    def render(pos, t_sim=0.0):
         t0 = time.perf_counter()
-        img = render_frame(scene, pos, model, **render_kw)
+        img = render_frame(scene, pos, model, time=t_sim, **render_kw)
         timers.render += time.perf_counter() - t0
         return img
 
@@ -408,17 +408,18 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     def consume(k, pos):
         nonlocal names, first_img
+        t_sim = plan.sim_frames[k] / plan.sim_fps  # keyframed colliders are drawn there
         if out_w is not None:
             if k == 0 and first_img is not None:
                 img, first_img = first_img, None
             else:
-                img = render(pos)
+                img = render(pos, t_sim)
             t0 = time.perf_counter()
             out_w.add(img)
             timers.encode += time.perf_counter() - t0
         t0 = time.perf_counter()
         if obj_w is not None:
-            meshes = scene_meshes(scene, pos, model)
+            meshes = scene_meshes(scene, pos, model, t_sim)
             if names is None:
                 names = outputs.mesh_names(meshes, scene)
             obj_w.add(meshes, names)

@@ -1,5 +1,10 @@
 """Forces of the classic model: gravity on every point plus Hooke's law along every enabled
-spring (SPEC section 2, step 1), shared by every integrator.
+spring (SPEC section 2, step 1), plus the scene's other forces (wind), shared by every
+integrator through `total_force`.
+
+A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
+adds to f and does nothing when its params say it is off, packed into the System by
+system.build_system and called from `total_force`.
 
 Positions and forces are structure-of-arrays, shape (3, N). The spring forces are computed
 direction by direction into `spring_force` (6, 3, N + pad): contiguous loops the compiler
@@ -14,6 +19,7 @@ import numpy as np
 from numba import njit, prange
 
 from .model import DIRECTION_DI, DIRECTION_DJ
+from .wind import add_wind_force
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
 
@@ -67,15 +73,16 @@ def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _gather(spring_force, offsets, order, wx, wy, wz, f, lo, hi):
-    """f[:, lo:hi] = (wx, wy, wz) + own springs - springs of later points ending there, in
+def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
+    """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
     m = hi - lo
+    mass_lo = mass[lo:hi]
     for a in range(3):
         out = f[a, lo:hi]
-        w = wx if a == 0 else (wy if a == 1 else wz)
+        g = gravity[a]
         for i in range(m):
-            out[i] = w
+            out[i] = mass_lo[i] * g
         for d in range(6):
             own = spring_force[d, a, lo:hi]
             for i in range(m):
@@ -100,23 +107,41 @@ def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
 
 @njit(cache=True, nogil=True, parallel=True)
 def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f):
-    """f[:] = mass * gravity + the spring forces at positions x (3, N)."""
+    """f[:] = mass * gravity + the spring forces at positions x (3, N); mass is (N,)."""
     compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force)
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        _gather(spring_force, offsets, order, mass * gravity[0], mass * gravity[1],
-                mass * gravity[2], f, lo, hi)
+        _gather(spring_force, offsets, order, mass, gravity, f, lo, hi)
+
+
+@njit(cache=True, nogil=True)
+def total_force(x, v, t, s, f):
+    """f[:] = every force on the points at positions x, velocities v (3, N), time t, for the
+    System `s`: gravity and springs (in the course code's order of summation), then wind."""
+    spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
+                  s.gravity, s.spring_force, f)
+    add_other_forces(x, v, t, s, f)
+
+
+@njit(cache=True, nogil=True)
+def external_force(x, v, t, s, f):
+    """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
+    treats the springs as constraints)."""
+    for a in range(3):
+        for p in range(x.shape[1]):
+            f[a, p] = s.mass[p] * s.gravity[a]
+    add_other_forces(x, v, t, s, f)
+
+
+@njit(cache=True, nogil=True)
+def add_other_forces(x, v, t, s, f):
+    """f += the forces beyond gravity and springs (each one function, off unless the scene
+    asks for it)."""
+    add_wind_force(x, v, t, s.wind, f)
 
 
 # --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------
-
-@njit(cache=True, nogil=True)
-def total_force(x, s, f):
-    """f[:] = mass * gravity + spring forces at positions x (3, N), for the System `s`
-    (the same sums, in the same order, as the Verlet update gathers)."""
-    spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-                  s.gravity, s.spring_force, f)
 
 
 @njit(cache=True, nogil=True)
@@ -204,9 +229,10 @@ def spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, o
                 buffer[d, 0, p] = (k - a) * along * ux + a * rx
                 buffer[d, 1, p] = (k - a) * along * uy + a * ry
                 buffer[d, 2, p] = (k - a) * along * uz + a * rz
+    no_mass, no_gravity = np.zeros(n), np.zeros(3)  # the gather starts from zero
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        _gather(buffer, offsets, order, 0.0, 0.0, 0.0, out, lo, hi)
+        _gather(buffer, offsets, order, no_mass, no_gravity, out, lo, hi)
 
 
 @njit(cache=True, nogil=True)

@@ -1,13 +1,14 @@
 """Frame assembly: scene + cloth positions -> meshes + camera -> image.
 
-    meshes = scene_meshes(scene, positions, model)   # cloth, then colliders in scene order
+    meshes = scene_meshes(scene, positions, model, time)  # cloth, then colliders in scene order
     cam = default_camera(scene, model.initial_positions, 512, 512)
-    img = render_frame(scene, positions, model)      # (H, W, 3) uint8, defaults from scene.render
+    img = render_frame(scene, positions, model, time=t)  # (H, W, 3) uint8, scene.render defaults
 
 `model` is the simulator's cloth model (pipeline.model.ClothModel): nw, nh, spring_a,
 spring_b, spring_enabled, initial_positions. The cloth mesh's `edges` (drawn by the
-wireframe shader) are the enabled springs. Mesh names: "cloth", "sphere_0", "plane_0", ...
-(numbered per kind, in scene order).
+wireframe shader) are the enabled springs. Mesh names: "cloth", "sphere_0", "plane_0",
+"box_0", "mesh_0", ... (numbered per kind, in scene order). `time` (seconds) places
+keyframed colliders.
 """
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ import numpy as np
 import shading
 from shading import Camera
 
-from .scene import CameraSettings, Plane, Scene, Sphere
+from .colliders import collider_pose, euler_matrix
+from .colliders.mesh import collider_mesh_arrays
+from .scene import Box, CameraSettings, MeshCollider, Plane, Scene, Sphere
 
 
 def _edges(model) -> np.ndarray:
@@ -40,37 +43,49 @@ def _cached_edges(model) -> np.ndarray:
     return e
 
 
+_KIND_NAMES = {Sphere: "sphere", Plane: "plane", Box: "box", MeshCollider: "mesh"}
+
+
 @lru_cache(maxsize=64)
-def _collider_mesh(kind: str, a: tuple, b, k: int):
-    """The mesh of a static collider, built once (its arrays are read-only)."""
-    m = shading.sphere_mesh(a, b) if kind == "sphere" else shading.plane_mesh(a, b)
-    m.name = f"{kind}_{k}"
+def _collider_mesh(collider, k: int):
+    """The mesh of a collider in its rest pose, built once (its arrays are read-only)."""
+    c = collider
+    if isinstance(c, Sphere):
+        m = shading.sphere_mesh(c.origin, c.radius)
+    elif isinstance(c, Plane):
+        m = shading.plane_mesh(c.point, c.normal)
+    elif isinstance(c, Box):
+        m = shading.box_mesh(c.center, c.half_extents, euler_matrix(c.rotation))
+    else:
+        m = shading.triangle_mesh(*collider_mesh_arrays(c))
+    m.name = f"{_KIND_NAMES[type(c)]}_{k}"
     for arr in (m.positions, m.normals, m.uvs, m.tangents, m.triangles, m.colour, m.edges):
         arr.flags.writeable = False
     return m
 
 
-def _key(v):
-    return tuple(float(x) for x in np.asarray(v, dtype=np.float64).ravel())
+def _posed(mesh, collider, time: float):
+    """The rest-pose mesh moved to the collider's keyframed pose at `time`."""
+    rot, shift = collider_pose(collider, time)
+    pivot = np.asarray(collider.pivot, dtype=np.float64)
+    return shading.Mesh((mesh.positions - pivot) @ rot.T + pivot + shift, mesh.normals @ rot.T,
+                        mesh.uvs, mesh.tangents @ rot.T, mesh.triangles, mesh.colour,
+                        mesh.edges, mesh.name)
 
 
-def scene_meshes(scene: Scene, positions, model) -> list:
-    """[cloth, colliders in scene order] as shading.Mesh objects. Collider meshes do not
-    change during a run: they are built once and shared between frames (read-only)."""
+def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:
+    """[cloth, colliders in scene order] as shading.Mesh objects, keyframed colliders at
+    their pose at `time`. Static collider meshes are built once and shared between frames
+    (read-only)."""
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model))
     meshes = [cloth]
-    counts = {}
+    counts: dict[type, int] = {}
     for c in scene.colliders:
-        if isinstance(c, Sphere):
-            kind, a, b = "sphere", _key(c.origin), float(c.radius)
-        elif isinstance(c, Plane):
-            kind, a, b = "plane", _key(c.point), _key(c.normal)
-        else:  # a collider kind the renderer does not know how to draw
-            continue
-        k = counts.get(kind, 0)
-        counts[kind] = k + 1
-        meshes.append(_collider_mesh(kind, a, b, k))
+        k = counts.get(type(c), 0)
+        counts[type(c)] = k + 1
+        mesh = _collider_mesh(c, k)
+        meshes.append(_posed(mesh, c, time) if c.keyframes else mesh)
     return meshes
 
 
@@ -99,12 +114,13 @@ def render_params(scene: Scene, aa: int | None = None) -> dict:
 
 def render_frame(scene: Scene, positions, model, shader: str | None = None,
                  width: int | None = None, height: int | None = None,
-                 aa: int | None = None) -> np.ndarray:
-    """One frame as a new (H, W, 3) uint8 array; None arguments default to scene.render."""
+                 aa: int | None = None, time: float = 0.0) -> np.ndarray:
+    """One frame as a new (H, W, 3) uint8 array; None arguments default to scene.render;
+    `time` (s) places keyframed colliders."""
     rs = scene.render
     w = int(width if width is not None else rs.width)
     h = int(height if height is not None else rs.height)
     cam = default_camera(scene, model.initial_positions, w, h)
-    meshes = scene_meshes(scene, positions, model)
+    meshes = scene_meshes(scene, positions, model, time)
     return shading.render(meshes, cam, scene.light, shader or rs.shader,
                           render_params(scene, aa))

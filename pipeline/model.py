@@ -13,10 +13,11 @@ length. Walking p in order and d in order inside gives the SPEC's spring list or
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from .scene import Scene
+from .scene import Cloth, Scene
 
 DIRECTION_NAMES = ("left", "above", "upper-left", "upper-right", "two-left", "two-above")
 DIRECTION_DI = np.array([0, -1, -1, -1, 0, -2], dtype=np.int64)
@@ -40,7 +41,8 @@ class ClothModel:
     width: float
     height: float
     thickness: float
-    mass: float  # of every point
+    mass: float  # of every point of a uniform cloth: width * height * density / N
+    point_mass: np.ndarray  # (N,) float64, mass * the mass map's multiplier
     damping: float  # the Verlet factor: fraction of velocity lost per step (percent / 100)
     x0: np.ndarray  # (3, N) float64, initial positions
     pinned: np.ndarray  # (N,) uint8, 1 = pinned
@@ -132,6 +134,7 @@ def build_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
         [k_type[t] if enabled[t] else 0.0 for t in DIRECTION_TYPE], dtype=np.float64
     )
     mass = ((c.width * c.height) * c.density) / float(n)
+    point_mass = np.full(n, mass) if c.mass_map is None else mass * mass_multipliers(c)
     return ClothModel(
         nw=nw,
         nh=nh,
@@ -139,6 +142,7 @@ def build_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
         height=c.height,
         thickness=c.thickness,
         mass=mass,
+        point_mass=point_mass,
         damping=c.damping / 100.0,
         x0=x,
         pinned=pinned,
@@ -147,3 +151,42 @@ def build_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
         stiffness=stiffness,
         spring_enabled_by_type=enabled,
     )
+
+
+def mass_multipliers(cloth: Cloth) -> np.ndarray:
+    """(N,) multipliers of the point mass from `cloth.mass_map`, row-major like the points.
+
+    The map's first row is the top edge of the cloth (the row with the largest y_index); a
+    map of another size than the grid is resampled bilinearly (corners on corners). An image
+    is read as greyscale g in [0, 1] and mapped to lo + g (hi - lo), (lo, hi) =
+    `cloth.mass_map_range`.
+    """
+    if isinstance(cloth.mass_map, Path):
+        from PIL import Image
+
+        with Image.open(cloth.mass_map) as im:
+            grey = np.asarray(im.convert("F"), dtype=np.float64) / 255.0
+        lo, hi = cloth.mass_map_range
+        rows = lo + np.clip(grey, 0.0, 1.0) * (hi - lo)
+    else:
+        rows = np.array(cloth.mass_map, dtype=np.float64)
+    grid = _resample(rows, cloth.num_height_points, cloth.num_width_points)
+    return np.ascontiguousarray(grid[::-1].ravel())
+
+
+def _resample(values: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Bilinear resampling of a 2-D array to (rows, cols), corner samples on corners."""
+    if values.shape == (rows, cols):
+        return values.copy()
+
+    def axis(n_out: int, n_in: int):
+        pos = np.linspace(0.0, n_in - 1.0, n_out)
+        i0 = np.minimum(np.floor(pos).astype(int), max(n_in - 2, 0))
+        i1 = np.minimum(i0 + 1, n_in - 1)
+        return i0, i1, pos - i0
+
+    r0, r1, wr = axis(rows, values.shape[0])
+    c0, c1, wc = axis(cols, values.shape[1])
+    top = values[r0][:, c0] * (1 - wc) + values[r0][:, c1] * wc
+    bottom = values[r1][:, c0] * (1 - wc) + values[r1][:, c1] * wc
+    return top * (1 - wr)[:, None] + bottom * wr[:, None]

@@ -726,12 +726,13 @@ def _renderer(plan: ReportPlan):
 
     models = {}
 
-    def render(vi: int, positions: np.ndarray, shader: str, w: int, h: int) -> np.ndarray:
+    def render(vi: int, sim_frame: int, positions: np.ndarray, shader: str, w: int,
+               h: int) -> np.ndarray:
         v = plan.variants[vi]
         if vi not in models:
             models[vi] = build_model(v.scene)
         return render_frame(v.scene, positions, models[vi], shader=shader, width=w, height=h,
-                            aa=plan.aa)
+                            aa=plan.aa, time=sim_frame / plan.sim_fps)
 
     return render
 
@@ -768,7 +769,7 @@ def build_grids(plan: ReportPlan, runs: Sequence[VariantRun], progress=None) -> 
                 head = (f"{v.label} · " if v.label else "") + f"{shader} · {_fmt_t(t)}"
                 if j in run.positions:
                     t0 = time.perf_counter()
-                    img = render(vi, run.positions[j], shader, plan.width, plan.height)
+                    img = render(vi, j, run.positions[j], shader, plan.width, plan.height)
                     ms = (time.perf_counter() - t0) * 1000
                     attrs["ms"] = f"{ms:.1f}"
                     cell = Cell(img, f"{head} · {ms:.1f} ms/frame", f"{ms:.1f} ms", attrs)
@@ -805,7 +806,7 @@ def build_gif_frames(plan: ReportPlan, runs: Sequence[VariantRun], progress=None
                 for vi, shader, _ in row:
                     run = runs[vi]
                     if j in run.positions:
-                        r_imgs.append(render(vi, run.positions[j], shader, gw, gh))
+                        r_imgs.append(render(vi, j, run.positions[j], shader, gw, gh))
                     else:
                         if vi not in placeholders:
                             placeholders[vi] = diverged_image(

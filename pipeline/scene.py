@@ -27,8 +27,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = [
-    "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane",
-    "Collider", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
+    "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane", "Box",
+    "MeshCollider", "Keyframe", "Collider", "Wind", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
     "Scene", "load_scene", "apply_overrides", "scene_schema",
 ]
 
@@ -71,6 +71,19 @@ class Cloth:
     enable_shearing: bool = True
     enable_bending: bool = True
     pinned: tuple[tuple[int, int], ...] = ()  # (x_index, y_index) = (column j, row i)
+    # Per-point mass multipliers, rows top edge first (see docs/scene-format.md): a tuple of
+    # rows of floats, an absolute image path, or None (uniform).
+    mass_map: tuple[tuple[float, ...], ...] | Path | None = None
+    mass_map_range: tuple[float, float] = (1.0, 2.0)  # image: black, white multipliers
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """A collider pose at `time`: offsets from the pose the scene file gives."""
+
+    time: float
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
 
 
 @dataclass(frozen=True)
@@ -80,6 +93,12 @@ class Sphere:
     origin: Vec3
     radius: float
     friction: float
+    keyframes: tuple[Keyframe, ...] = ()
+
+    @property
+    def pivot(self) -> Vec3:
+        """The point keyframe rotations turn about."""
+        return self.origin
 
 
 @dataclass(frozen=True)
@@ -89,9 +108,60 @@ class Plane:
     point: Vec3
     normal: Vec3  # as written in the scene (not normalised)
     friction: float
+    keyframes: tuple[Keyframe, ...] = ()
+
+    @property
+    def pivot(self) -> Vec3:
+        return self.point
 
 
-Collider = Sphere | Plane
+@dataclass(frozen=True)
+class Box:
+    """A `box` collider: a solid oriented cuboid."""
+
+    center: Vec3
+    half_extents: Vec3
+    friction: float
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
+    keyframes: tuple[Keyframe, ...] = ()
+
+    @property
+    def pivot(self) -> Vec3:
+        return self.center
+
+
+@dataclass(frozen=True)
+class MeshCollider:
+    """A `mesh` collider: a triangle mesh file placed at R (scale * v) + translation."""
+
+    path: Path  # absolute
+    friction: float
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
+    scale: Vec3 = (1.0, 1.0, 1.0)
+    solid: bool = True  # closed solid (watertight) or one-sided surface
+    thickness: float = 0.005  # metres kept between points and the surface
+    keyframes: tuple[Keyframe, ...] = ()
+
+    @property
+    def pivot(self) -> Vec3:
+        return self.translation
+
+
+Collider = Sphere | Plane | Box | MeshCollider
+
+
+@dataclass(frozen=True)
+class Wind:
+    """The `wind` block (docs/wind.md): air velocity, aerodynamic coefficients, gusts."""
+
+    velocity: Vec3 = (0.0, 0.0, 0.0)
+    air_density: float = 1.225
+    drag: float = 1.0
+    lift: float = 0.5
+    gust: float = 0.0
+    gust_scale: float = 1.0
+    gust_time: float = 1.0
 
 
 @dataclass(frozen=True)
@@ -147,6 +217,7 @@ class Scene:
 
     cloth: Cloth
     colliders: tuple[Collider, ...] = ()  # in the order the scene lists them
+    wind: Wind | None = None  # None: no air
     simulation: SimulationSettings = SimulationSettings()
     camera: CameraSettings | None = None  # None: SPEC section 4 default camera
     light: LightSettings = LightSettings()
@@ -164,8 +235,9 @@ class Scene:
 # Loading
 # --------------------------------------------------------------------------------------
 
-_TOP_KEYS = ("cloth", "sphere", "plane", "simulation", "camera", "light", "render")
-_COLLIDER_KEYS = ("sphere", "plane")
+_TOP_KEYS = ("cloth", "sphere", "plane", "box", "mesh", "wind", "simulation", "camera", "light",
+             "render")
+_COLLIDER_KEYS = ("sphere", "plane", "box", "mesh")
 _DICT_SOURCE = "<scene>"
 
 PathItem = str | int
@@ -207,6 +279,7 @@ def load_scene(source: str | os.PathLike | dict, overrides: Sequence[str] = ()) 
         _check_finite(data, [])
         _validate_schema(data)
         _check_semantics(data)
+        _check_files(data, base_dir)
     except _Problem as p:
         raise SceneError(f"{file}: {p.text}{_blame(p.path, touched)}") from None
 
@@ -547,6 +620,19 @@ def _check_semantics(data: dict) -> None:
             if _norm(pl["normal"]) == 0.0:
                 raise _Problem(path, f"{_fmt_path(path)}: expected a non-zero vector, "
                                      f"got {_show(pl['normal'])}")
+    for path, obj in _collider_items(data):
+        times = [k["time"] for k in obj.get("keyframes", ())]
+        for i in range(1, len(times)):
+            if not times[i] > times[i - 1]:
+                kp = path + ["keyframes", i, "time"]
+                raise _Problem(kp, f"{_fmt_path(kp)}: keyframes out of order: expected a time "
+                                   f"> {_num(times[i - 1])} (the previous key's), got "
+                                   f"{_num(times[i])}")
+    rows = cloth.get("mass_map")
+    if isinstance(rows, list) and len({len(r) for r in rows}) > 1:
+        path = ["cloth", "mass_map"]
+        raise _Problem(path, f"{_fmt_path(path)}: expected rows of equal length, got rows of "
+                             f"{', '.join(str(n) for n in sorted({len(r) for r in rows}))} values")
     cam = data.get("camera")
     if cam is not None:
         pos, tgt = cam["position"], cam["target"]
@@ -567,6 +653,65 @@ def _check_semantics(data: dict) -> None:
                                              f"{_show(view)}), got {_show(up)}")
 
 
+def _collider_items(data: dict):
+    """(key path, raw object) of every collider, in file order."""
+    for key in data:
+        if key in _COLLIDER_KEYS:
+            value = data[key]
+            many = isinstance(value, list)
+            for i, obj in enumerate(value if many else [value]):
+                yield ([key, i] if many else [key]), obj
+
+
+def _check_files(data: dict, base_dir: Path) -> None:
+    """Files the scene names must exist and make sense: mesh colliders (readable by trimesh,
+    watertight when solid) and an image mass map."""
+    for path, obj in _collider_items(data):
+        if path[0] == "mesh":
+            _check_mesh_file(path + ["path"], _resolve_path(base_dir, obj["path"]),
+                             obj.get("solid", True))
+    mass_map = data["cloth"].get("mass_map")
+    if isinstance(mass_map, str):
+        _check_image_file(["cloth", "mass_map"], _resolve_path(base_dir, mass_map))
+
+
+def _check_mesh_file(path: list[PathItem], file: Path, solid: bool) -> None:
+    where = _fmt_path(path)
+    if not file.is_file():
+        raise _Problem(path, f"{where}: mesh file {str(file)!r} not found")
+    import trimesh  # lazily: this module stays light
+
+    try:
+        mesh = trimesh.load(file, force="mesh")
+    except Exception as e:  # trimesh raises many kinds for unreadable files
+        raise _Problem(path, f"{where}: cannot read {str(file)!r} as a mesh "
+                             f"(OBJ, STL, PLY, ...): {str(e).splitlines()[0] if str(e) else type(e).__name__}")
+    faces = getattr(mesh, "faces", None)
+    if faces is None or len(faces) == 0:
+        raise _Problem(path, f"{where}: expected a triangle mesh, got no faces in {str(file)!r}")
+    if solid and not mesh.is_watertight:
+        raise _Problem(path, f"{where}: {str(file)!r} is not watertight (it has holes or "
+                             f"open edges): a solid collider needs a closed mesh; set "
+                             f'"solid": false to collide with it as a one-sided surface')
+
+
+def _check_image_file(path: list[PathItem], file: Path) -> None:
+    where = _fmt_path(path)
+    if not file.is_file():
+        raise _Problem(path, f"{where}: image {str(file)!r} not found")
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(file) as im:
+            im.verify()
+    except (OSError, UnidentifiedImageError) as e:
+        raise _Problem(path, f"{where}: cannot read {str(file)!r} as an image: {e}")
+
+
+def _resolve_path(base_dir: Path, value: str) -> Path:
+    return Path(os.path.abspath(base_dir / Path(value).expanduser()))
+
+
 # --- building -----------------------------------------------------------------------------
 
 def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
@@ -580,18 +725,16 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         enable_shearing=bool(c["enable_shearing"]),
         enable_bending=bool(c["enable_bending"]),
         pinned=tuple((int(x), int(y)) for x, y in c.get("pinned", ())),
+        mass_map=_mass_map(c.get("mass_map"), base_dir),
+        mass_map_range=tuple(float(v) for v in c.get("mass_map_range", Cloth.mass_map_range)),
     )
-    colliders: list[Collider] = []
-    for key, value in data.items():  # file order: the first-written key acts first
-        if key not in _COLLIDER_KEYS:
-            continue
-        for obj in value if isinstance(value, list) else [value]:
-            if key == "sphere":
-                colliders.append(Sphere(origin=_vec3(obj["origin"]), radius=float(obj["radius"]),
-                                        friction=float(obj["friction"])))
-            else:
-                colliders.append(Plane(point=_vec3(obj["point"]), normal=_vec3(obj["normal"]),
-                                       friction=float(obj["friction"])))
+    colliders = [_collider(path[0], obj, base_dir) for path, obj in _collider_items(data)]
+    wind = None
+    if "wind" in data:
+        w, wd = data["wind"], Wind()
+        wind = Wind(velocity=_vec3(w.get("velocity", wd.velocity)),
+                    **{k: float(w.get(k, getattr(wd, k))) for k in
+                       ("air_density", "drag", "lift", "gust", "gust_scale", "gust_time")})
 
     s = data.get("simulation", {})
     d = SimulationSettings()
@@ -619,9 +762,7 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
     rd = RenderSettings()
 
     def path_of(key: str) -> Path | None:
-        if key not in r:
-            return None
-        return Path(os.path.abspath(base_dir / Path(r[key]).expanduser()))
+        return _resolve_path(base_dir, r[key]) if key in r else None
 
     params: dict[str, Any] = {}
     for key in RENDER_PARAMS:
@@ -634,8 +775,44 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         texture=path_of("texture"), height_map=path_of("height_map"), cubemap=path_of("cubemap"),
         params=params,
     )
-    return Scene(cloth=cloth, colliders=tuple(colliders), simulation=simulation, camera=camera,
-                 light=light, render=render, source=src_path)
+    return Scene(cloth=cloth, colliders=tuple(colliders), wind=wind, simulation=simulation,
+                 camera=camera, light=light, render=render, source=src_path)
+
+
+def _mass_map(value, base_dir: Path):
+    if value is None:
+        return None
+    if isinstance(value, str):
+        return _resolve_path(base_dir, value)
+    return tuple(tuple(float(v) for v in row) for row in value)
+
+
+def _keyframes(obj: dict) -> tuple[Keyframe, ...]:
+    zero = (0.0, 0.0, 0.0)
+    return tuple(Keyframe(time=float(k["time"]), translation=_vec3(k.get("translation", zero)),
+                          rotation=_vec3(k.get("rotation", zero)))
+                 for k in obj.get("keyframes", ()))
+
+
+def _collider(key: str, obj: dict, base_dir: Path) -> Collider:
+    friction, keys = float(obj["friction"]), _keyframes(obj)
+    if key == "sphere":
+        return Sphere(origin=_vec3(obj["origin"]), radius=float(obj["radius"]),
+                      friction=friction, keyframes=keys)
+    if key == "plane":
+        return Plane(point=_vec3(obj["point"]), normal=_vec3(obj["normal"]), friction=friction,
+                     keyframes=keys)
+    zero = (0.0, 0.0, 0.0)
+    if key == "box":
+        return Box(center=_vec3(obj["center"]), half_extents=_vec3(obj["half_extents"]),
+                   friction=friction, rotation=_vec3(obj.get("rotation", zero)), keyframes=keys)
+    scale = obj.get("scale", 1.0)
+    return MeshCollider(
+        path=_resolve_path(base_dir, obj["path"]), friction=friction,
+        translation=_vec3(obj.get("translation", zero)), rotation=_vec3(obj.get("rotation", zero)),
+        scale=_vec3(scale) if isinstance(scale, list) else (float(scale),) * 3,
+        solid=bool(obj.get("solid", True)), thickness=float(obj.get("thickness", 0.005)),
+        keyframes=keys)
 
 
 # --- small helpers ------------------------------------------------------------------------

@@ -86,7 +86,7 @@ class Simulation:
     # --- stepping ----------------------------------------------------------------------
     def step(self, steps: int = 1) -> None:
         """Advance by `steps` time steps; raises DivergenceError if the run blows up."""
-        done, kinetic, bound = self._state.advance(self.system, steps)
+        done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
         if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
             raise DivergenceError(self._divergence_message(kinetic, bound))
@@ -108,7 +108,7 @@ class Simulation:
         return (
             f"time step {self.system.dt:.3g} s exceeds the explicit stability limit "
             f"{self.dt_max:.3g} s of this cloth (omega_max = {self.omega_max:.4g} rad/s from "
-            f"ks = {self.scene.cloth.ks:g} and point mass {self.model.mass:.3g} kg): expect a "
+            f"ks = {self.scene.cloth.ks:g} and point mass {self.model.point_mass.min():.3g} kg): expect a "
             f"blow-up; use simulation.steps_per_frame >= {needed} or a smaller cloth.ks"
         )
 

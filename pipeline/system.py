@@ -12,12 +12,13 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from .colliders import collide_all, pack_colliders
+from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
 from .forces import direction_offsets, gather_order, spring_force_buffer
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .scene import Scene
 from .self_collision import SelfCollisionScratch, self_collide
+from .wind import WindParams, max_wind_speed, pack_wind
 
 
 class System(NamedTuple):
@@ -36,13 +37,15 @@ class System(NamedTuple):
     stiffness: np.ndarray  # (6,)
     limit: np.ndarray  # (6, N) 1.1 * rest
     limit_sq_lo: np.ndarray  # (6, N)
-    mass: float
+    mass: np.ndarray  # (N,) point masses
+    total_mass: float
     gravity: np.ndarray  # (3,)
     dt: float
     damping: float  # fraction of velocity lost per step
     steps_per_frame: int
-    collider_kinds: np.ndarray
-    collider_params: np.ndarray
+    colliders: ColliderTable
+    wind: WindParams
+    needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool
     scratch: tuple  # SelfCollisionScratch.as_tuple()
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
@@ -53,8 +56,10 @@ class System(NamedTuple):
 def build_system(scene: Scene, model: ClothModel) -> System:
     sim = scene.simulation
     limit, limit_sq_lo = stretch_limits(model.rest)
-    kinds, params = pack_colliders(scene.colliders)
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
+    centre = model.x0.mean(axis=1)
+    extent = max([float(np.linalg.norm(np.subtract(c.pivot, centre))) for c in scene.colliders]
+                 + [0.0]) + math.hypot(model.width, model.height)
     return System(
         nw=model.nw,
         nh=model.nh,
@@ -71,27 +76,31 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         stiffness=model.stiffness,
         limit=limit,
         limit_sq_lo=limit_sq_lo,
-        mass=model.mass,
+        mass=model.point_mass,
+        total_mass=float(model.point_mass.sum()),
         gravity=np.array(sim.gravity, dtype=np.float64),
         dt=dt,
         damping=model.damping,
         steps_per_frame=int(sim.steps_per_frame),
-        collider_kinds=kinds,
-        collider_params=params,
+        colliders=pack_colliders(scene.colliders),
+        wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),
+        needs_velocity=scene.wind is not None,
         self_collision=scene.self_collision,
         scratch=SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple(),
         spring_force=spring_force_buffer(model.n, model.nw),
         mask=candidate_mask(model.n),
-        slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision),
+        slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
+        + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent),
     )
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
-    """Speed a point may reach without any energy source (collision and constraint pushes).
+    """Speed a point may reach without gravity doing work (collision and constraint pushes).
 
     A self-collision push moves a point by up to 2 * thickness / steps_per_frame in one step
     of dt, i.e. at up to 2 * thickness * frames_per_sec; 0.5 m/s covers the small position
-    corrections of collider projection and the stretch limit.
+    corrections of collider projection and the stretch limit. build_system adds the other
+    energy sources: the fastest wind and the fastest moving collider surface.
     """
     return 0.5 + (2.0 * thickness * frames_per_sec if self_collision else 0.0)
 
@@ -101,39 +110,42 @@ GUARD_FACTOR = 2.0
 
 @njit(cache=True, nogil=True)
 def motion_summary(x, previous, system):
-    """(all finite, sum over points of |x - previous|^2, sum over points of the drop along g
-    since t = 0) for the guard; `previous` is the state one step earlier."""
+    """(all finite, sum over points of m |x - previous|^2, sum over points of m * the drop
+    along g since t = 0) for the guard; `previous` is the state one step earlier."""
     g = system.gravity
     g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
     x0 = system.x0
+    mass = system.mass
     finite = True
     moved_sq = drop = 0.0
     for p in range(x.shape[1]):
+        m = mass[p]
         for a in range(3):
             v = x[a, p] - previous[a, p]
-            moved_sq += v * v
-            drop += (x[a, p] - x0[a, p]) * g[a]
+            moved_sq += m * (v * v)
+            drop += m * ((x[a, p] - x0[a, p]) * g[a])
     finite = np.isfinite(moved_sq) and np.isfinite(drop)
     return finite, moved_sq, drop / g_norm if g_norm > 0.0 else 0.0
 
 
 @njit(cache=True, nogil=True)
-def energy_guard(v_sq_sum, drop, system):
+def energy_guard(mv_sq_sum, mass_drop, system):
     """Kinetic-energy bound of the divergence guard: returns (kinetic energy, bound) in J.
 
-    No physical run gains more kinetic energy than gravity has done work on it: the springs
-    start at rest length, colliders are fixed and damping only removes energy, so
-        KE(t) <= M |g| * max(0, drop of the centre of mass along g since t = 0).
+    No physical run gains more kinetic energy than gravity has done work on it, apart from
+    the energy sources counted in `slack_speed`: the springs start at rest length, damping
+    only removes energy, so
+        KE(t) <= |g| * max(0, sum of m_p * drop of p along g since t = 0).
     The guard allows GUARD_FACTOR times that (velocities are finite-difference estimates)
-    plus N * m * slack_speed**2 / 2 for collision and constraint pushes. `v_sq_sum` is the
-    sum of |v|^2 over the points, `drop` the sum of their drops (N times the centre's).
+    plus M * slack_speed**2 / 2 (M the cloth's mass) for collision and constraint pushes,
+    wind and moving colliders. `mv_sq_sum` is the sum of m |v|^2 over the points,
+    `mass_drop` the sum of m * drop.
     """
     g = system.gravity
     g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-    m = system.mass
-    n = system.x0.shape[1]
-    kinetic = 0.5 * m * v_sq_sum
-    bound = GUARD_FACTOR * m * g_norm * max(drop, 0.0) + 0.5 * n * m * system.slack_speed**2
+    kinetic = 0.5 * mv_sq_sum
+    bound = (GUARD_FACTOR * g_norm * max(mass_drop, 0.0)
+             + 0.5 * system.total_mass * system.slack_speed**2)
     return kinetic, bound
 
 
@@ -148,7 +160,11 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     eigenvalue over a grid of theta in [0, pi] x [-pi, pi] (the maximum for square cells is
     8 ks / m at theta = (pi, 0)). Damped Verlet x' = x + (1 - c)(x - x_last) + a dt^2 is stable
     for omega dt < sqrt(2 (2 - c)), i.e. dt_max = sqrt(2 (2 - c)) / omega_max (~ 2 / omega_max).
+    With a mass map, m is the lightest point's mass: M^-1 K has no eigenvalue above
+    lambda_max(K) / m_min, so the limit stays on the safe side (tight when the light points
+    fill a region larger than a wavelength, as a uniform cloth with a heavier hem does).
     """
+    light = float(model.point_mass.min())  # the lightest point bounds the frequencies
     sx = model.width / (model.nw - 1)
     sy = model.height / (model.nh - 1)
     tx = np.linspace(0.0, math.pi, samples)
@@ -162,7 +178,7 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
         oj, oi = DIRECTION_DJ[d], DIRECTION_DI[d]
         e = np.array([oj * sx, oi * sy, 0.0])
         e /= np.linalg.norm(e)
-        weight = (k / model.mass) * 2.0 * (1.0 - np.cos(theta_x * oj + theta_y * oi))
+        weight = (k / light) * 2.0 * (1.0 - np.cos(theta_x * oj + theta_y * oi))
         dyn += weight[..., None, None] * np.outer(e, e)
     omega_max = math.sqrt(max(float(np.linalg.eigvalsh(dyn).max()), 0.0))
     if omega_max == 0.0:
@@ -184,15 +200,16 @@ def drag_rate(system):
 
 
 @njit(cache=True, nogil=True)
-def position_passes(x, last, system):
+def position_passes(x, last, system, t_start):
     """Steps 3-5 of the classic order on the free points of x (3, N), after an integrator's
-    update from the start-of-step positions `last`: self-collision (when enabled), the
-    colliders in scene order (friction measured from `last`), then Provot's stretch limit."""
+    update from the start-of-step positions `last` (at time t_start) over one step:
+    self-collision (when enabled), the colliders in scene order (friction measured from
+    `last`), then Provot's stretch limit."""
     s = system
     if s.self_collision:
         self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
                      s.steps_per_frame, s.scratch)
-    collide_all(x, last, s.pinned, s.collider_kinds, s.collider_params)
+    collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
 
 

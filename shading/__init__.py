@@ -9,11 +9,13 @@
 or unreadable texture (path in the message).
 """
 from .camera import Camera
-from .mesh import Mesh, cloth_mesh, normals_tangents, plane_mesh, sphere_mesh
+from .mesh import (Mesh, box_mesh, cloth_mesh, normals_tangents, plane_mesh, sphere_mesh,
+                   triangle_mesh)
 from .renderer import Renderer, get_renderer, render
 from .shaders import REGISTRY, SHADERS, Shader, get_shader
 from .textures import TextureError, load_cubemap, load_texture
 
-__all__ = ["Camera", "Mesh", "cloth_mesh", "sphere_mesh", "plane_mesh", "normals_tangents",
+__all__ = ["Camera", "Mesh", "cloth_mesh", "sphere_mesh", "plane_mesh", "box_mesh",
+           "triangle_mesh", "normals_tangents",
            "Renderer", "get_renderer", "render", "SHADERS", "REGISTRY", "Shader",
            "get_shader", "TextureError", "load_texture", "load_cubemap"]

@@ -268,3 +268,50 @@ def plane_mesh(point, normal, colour=PLANE_COLOUR, half_side=PLANE_HALF_SIDE,
             edges.append((j * (k + 1) + i, (j + 1) * (k + 1) + i))
     return Mesh(pos, nrm, uvs, tan, tris, np.asarray(colour, dtype=np.float64),
                 np.array(edges, dtype=np.int32), "plane")
+
+
+def box_mesh(center, half_extents, rotation, colour=SPHERE_COLOUR, cells=4) -> Mesh:
+    """An oriented box (rotation: 3x3 matrix, box axes as columns) as six faces of
+    cells x cells quads each, with their own vertices so the edges stay sharp."""
+    rot = np.asarray(rotation, dtype=np.float64).reshape(3, 3)
+    h = np.asarray(half_extents, dtype=np.float64)
+    tris, uvs = cloth_topology(cells + 1, cells + 1)
+    s = np.linspace(-1.0, 1.0, cells + 1)
+    I, J = np.meshgrid(np.arange(cells + 1), np.arange(cells + 1), indexing="ij")
+    a, b = s[J.ravel()], s[I.ravel()]
+    positions, all_uvs, triangles, edges = [], [], [], []
+    for axis in range(3):
+        for sign in (1.0, -1.0):
+            # face axes u (columns), v (rows) with v x u = the outward normal: then the
+            # (A, C, B) triangles face outwards, as on the plane mesh
+            u_axis, v_axis = (axis + 2) % 3, (axis + 1) % 3
+            if sign < 0:
+                u_axis, v_axis = v_axis, u_axis
+            local = np.zeros((a.size, 3))
+            local[:, axis] = sign
+            local[:, u_axis] = a
+            local[:, v_axis] = b
+            base = len(positions) * a.size
+            positions.append(local * h)
+            all_uvs.append(uvs)
+            triangles.append(tris + base)
+            ring = [0, cells, (cells + 1) * (cells + 1) - 1, cells * (cells + 1)]
+            edges.extend((base + ring[k], base + ring[(k + 1) % 4]) for k in range(4))
+    pos = np.concatenate(positions) @ rot.T + np.asarray(center, dtype=np.float64)
+    uv = np.concatenate(all_uvs)
+    tri = np.concatenate(triangles).astype(np.int32)
+    nrm, tan = normals_tangents(pos, uv, tri)
+    return Mesh(pos, nrm, uv, tan, tri, np.asarray(colour, dtype=np.float64),
+                np.array(edges, dtype=np.int32), "box")
+
+
+def triangle_mesh(vertices, faces, colour=SPHERE_COLOUR, name="mesh") -> Mesh:
+    """A triangle mesh (a mesh collider) with smooth area-weighted normals; uvs are a planar
+    projection (x + z, y), enough for the texture-based shaders."""
+    pos = np.ascontiguousarray(vertices, dtype=np.float64)
+    tri = np.ascontiguousarray(faces, dtype=np.int32)
+    uv = np.stack([pos[:, 0] + pos[:, 2], pos[:, 1]], axis=1)
+    nrm, tan = normals_tangents(pos, uv, tri)
+    edges = np.unique(np.sort(np.concatenate([tri[:, [0, 1]], tri[:, [1, 2]], tri[:, [2, 0]]]),
+                              axis=1), axis=0)
+    return Mesh(pos, nrm, uv, tan, tri, np.asarray(colour, dtype=np.float64), edges, name)

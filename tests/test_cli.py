@@ -374,6 +374,17 @@ def test_bad_scene_corpus(env, tmp_path, capsys):
     assert files(tmp_path) == []
 
 
+@pytest.mark.parametrize("name", ["mesh_file_missing", "mesh_not_watertight",
+                                  "keyframes_out_of_order", "mass_map_image_missing"])
+def test_bad_scene_files_it_names(env, tmp_path, capsys, name):
+    """Scene keys that name files or order keyframes: exit 2, one line, nothing written."""
+    bad = ROOT / "tests" / "bad_scenes" / f"{name}.json"
+    code, _, err = run(capsys, bad, "--out", tmp_path / "c.gif", "--frames", "1")
+    assert code == 2 and err.startswith("render: ") and f"{name}.json: " in err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert files(tmp_path) == []
+
+
 def test_debug_shows_traceback(env, tmp_path, capsys):
     bad = tmp_path / "bad.json"
     bad.write_text("[]")

@@ -233,7 +233,31 @@ BAD_TABLE = [
     ("render_background_negative.json", "render.background[2]: expected a number >= 0"),
     ("render_texture_number.json", "render.texture: expected a file path"),
     ("render_param_bool.json", "render.k_s: expected a number >= 0, got false"),
+    ("mesh_file_missing.json", "mesh.path: mesh file '"),
+    ("mesh_not_watertight.json", "mesh[1].path: '"),
+    ("mesh_not_a_mesh.json", "mesh.path: cannot read '"),
+    ("mesh_scale_negative.json", "mesh.scale: expected a number > 0 or a list of 3 numbers > 0"),
+    ("keyframes_out_of_order.json",
+     "sphere.keyframes[2].time: keyframes out of order: expected a time > 2 (the previous "
+     "key's), got 1.5"),
+    ("keyframe_unknown_key.json", "unknown key 'position' in plane.keyframes[0]"),
+    ("keyframes_empty.json", "plane.keyframes: expected a non-empty list of keyframe objects"),
+    ("box_half_extent_zero.json", "box.half_extents[1]: expected a number > 0, got 0"),
+    ("box_missing_center.json", "box[1].center: missing required key"),
+    ("wind_typo.json", "unknown key 'velocty' in wind (did you mean 'velocity'?"),
+    ("wind_density_negative.json", "wind.air_density: expected a number >= 0, got -1"),
+    ("mass_map_ragged.json", "cloth.mass_map: expected rows of equal length"),
+    ("mass_map_zero.json", "cloth.mass_map[0][1]: expected a number > 0, got 0"),
+    ("mass_map_image_missing.json", "cloth.mass_map: image '"),
+    ("mass_map_not_an_image.json", "cloth.mass_map: cannot read '"),
 ]
+
+
+def test_mesh_file_messages_say_what_is_wrong():
+    assert error_of(str(BAD / "mesh_not_watertight.json")).endswith(
+        "open_bowl.obj' is not watertight (it has holes or open edges): a solid collider "
+        'needs a closed mesh; set "solid": false to collide with it as a one-sided surface')
+    assert "no_such_mesh.obj' not found" in error_of(str(BAD / "mesh_file_missing.json"))
 
 
 def test_bad_table_covers_every_bad_file():
@@ -273,7 +297,8 @@ def test_top_level_errors_are_preferred_and_unknown_beats_missing():
     d["clth"] = d.pop("cloth")
     msg = error_of(d)
     assert msg.startswith("<scene>: unknown key 'clth' at top level (did you mean 'cloth'?")
-    assert "expected one of: cloth, sphere, plane, simulation, camera, light, render" in msg
+    assert ("expected one of: cloth, sphere, plane, box, mesh, wind, simulation, camera, light, "
+            "render") in msg
 
 
 # --------------------------------------------------------------------------------------

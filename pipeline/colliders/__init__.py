@@ -1,61 +1,246 @@
-"""Static colliders (SPEC section 2, step 4).
+"""Colliders (SPEC section 2, step 4): static or keyframed, applied in scene order.
 
 A collider kind is one module in this package defining:
     KIND: int           its code in the packed table,
     SCENE_TYPE: type    the scene dataclass it packs,
-    pack(obj) -> np.ndarray   its parameters as floats (at most PARAMS_WIDTH),
-    project(params, c, x, y, z, lx, ly, lz) -> (x, y, z)   an @njit point projection
-                        reading its parameters from row c of the packed table.
-The packed table (kinds, params) lists the scene's colliders in scene order, and
-`collide_point` applies them in that order to one point. Adding a kind: its module, plus its
-entry in `_KINDS` and one branch in `collide_point` (numba compiles static dispatch only).
+    pack(obj, data) -> np.ndarray   its parameters as floats (at most PARAMS_WIDTH); bulk
+                        arrays (a mesh's distance grid) go to `data.add(array) -> offset`,
+    project(params, c, data, x, y, z, lx, ly, lz) -> (x, y, z)   an @njit point projection
+                        reading its parameters from row c of the packed table, in the
+                        collider's rest frame (the pose the scene file gives).
+Adding a kind: its module, plus its entry in `_KINDS` and one branch in `_project`
+(numba compiles static dispatch only).
+
+Motion. A collider with keyframes has pose (R(t), T(t)) at time t: a point p of its rest
+frame is at R(t) (p - pivot) + pivot + T(t) in the world (pivot: sphere origin, plane point,
+box center, mesh translation). A step from t - dt to t projects in the rest frame: the
+point's position now through the pose at t, its start-of-step position through the pose at
+t - dt. The friction rule `last + (1 - friction) (target - last)` then acts relative to the
+moving surface: friction 1 carries a touching point along with the collider, friction 0
+leaves its tangential motion alone. Static colliders skip the transforms (bit-identical to
+the course code).
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
-from . import plane, sphere
+from . import box, mesh, plane, sphere
 
-PARAMS_WIDTH = 8
-_KINDS = (sphere, plane)
+PARAMS_WIDTH = 16
+POSE_WIDTH = 12  # R row-major (9), T (3)
+_KINDS = (sphere, plane, box, mesh)
 _BY_TYPE = {kind.SCENE_TYPE: kind for kind in _KINDS}
+CHUNKS = 8  # work items of the parallel point loop
 
 
-def pack_colliders(colliders: Sequence[object]) -> tuple[np.ndarray, np.ndarray]:
-    """(kinds int64 (C,), params float64 (C, PARAMS_WIDTH)) for the kernels, in scene order."""
-    kinds = np.zeros(len(colliders), dtype=np.int64)
-    params = np.zeros((len(colliders), PARAMS_WIDTH), dtype=np.float64)
+class ColliderData:
+    """One flat float64 array that collider kinds append bulk parameters to."""
+
+    def __init__(self) -> None:
+        self._parts: list[np.ndarray] = []
+        self._size = 0
+
+    def add(self, array: np.ndarray) -> int:
+        """Append `array` (flattened, as float64); returns its offset."""
+        flat = np.ascontiguousarray(array, dtype=np.float64).ravel()
+        offset = self._size
+        self._parts.append(flat)
+        self._size += flat.size
+        return offset
+
+    def array(self) -> np.ndarray:
+        return np.concatenate(self._parts) if self._parts else np.zeros(1)
+
+
+class ColliderTable(NamedTuple):
+    """The scene's colliders packed for the kernels, in scene order (C colliders)."""
+
+    kinds: np.ndarray  # (C,) int64
+    params: np.ndarray  # (C, PARAMS_WIDTH) float64
+    data: np.ndarray  # (D,) float64, see ColliderData
+    keys: np.ndarray  # (C, K, 7) float64: time, translation (3), Euler angles in radians (3)
+    key_count: np.ndarray  # (C,) int64, 0 = static
+    pivot: np.ndarray  # (C, 3)
+    pose: np.ndarray  # (C, 2, POSE_WIDTH) scratch: poses at the start and the end of a step
+
+
+def euler_matrix(degrees: Sequence[float]) -> np.ndarray:
+    """R = Rz Ry Rx for Euler angles in degrees (x applied first)."""
+    out = np.empty(9)
+    _euler_into(out, 0, *(math.radians(float(a)) for a in degrees))
+    return out.reshape(3, 3)
+
+
+def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
+    """The packed table of `colliders` (scene order)."""
+    count = len(colliders)
+    kinds = np.zeros(count, dtype=np.int64)
+    params = np.zeros((count, PARAMS_WIDTH), dtype=np.float64)
+    data = ColliderData()
+    key_len = max([len(obj.keyframes) for obj in colliders] + [1])
+    keys = np.zeros((count, key_len, 7), dtype=np.float64)
+    key_count = np.zeros(count, dtype=np.int64)
+    pivot = np.zeros((count, 3), dtype=np.float64)
     for c, obj in enumerate(colliders):
         module = _BY_TYPE[type(obj)]
         kinds[c] = module.KIND
-        values = module.pack(obj)
+        values = module.pack(obj, data)
         params[c, : len(values)] = values
-    return kinds, params
+        key_count[c] = len(obj.keyframes)
+        pivot[c] = obj.pivot
+        for k, key in enumerate(obj.keyframes):
+            keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
+    return ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
+                         np.zeros((count, 2, POSE_WIDTH)))
+
+
+def collider_pose(obj, t: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R (3, 3), T (3,)) of a collider's keyframed motion at time t (identity if static):
+    its rest-frame point p is at R (p - pivot) + pivot + T."""
+    if not obj.keyframes:
+        return np.eye(3), np.zeros(3)
+    keys = np.array([(k.time, *k.translation, *np.radians(k.rotation)) for k in obj.keyframes])
+    out = np.empty(POSE_WIDTH)
+    pose_at(keys, len(keys), float(t), out)
+    return out[:9].reshape(3, 3), out[9:].copy()
+
+
+def max_surface_speed(colliders: Sequence[object], extent: float) -> float:
+    """An upper bound of the speed of any collider surface point within `extent` metres of
+    its pivot (|T'| + |angular velocity| * extent over every key segment), for the guard."""
+    speed = 0.0
+    for obj in colliders:
+        keys = obj.keyframes
+        for a, b in zip(keys, keys[1:]):
+            span = b.time - a.time
+            move = np.linalg.norm(np.subtract(b.translation, a.translation)) / span
+            turn = np.abs(np.radians(np.subtract(b.rotation, a.rotation))).sum() / span
+            speed = max(speed, move + turn * extent)
+    return float(speed)
+
+
+@njit(cache=True, nogil=True)
+def _euler_into(out, o, rx, ry, rz):
+    """out[o:o+9] = Rz Ry Rx, row-major."""
+    cx, sx = np.cos(rx), np.sin(rx)
+    cy, sy = np.cos(ry), np.sin(ry)
+    cz, sz = np.cos(rz), np.sin(rz)
+    out[o + 0] = cz * cy
+    out[o + 1] = cz * sy * sx - sz * cx
+    out[o + 2] = cz * sy * cx + sz * sx
+    out[o + 3] = sz * cy
+    out[o + 4] = sz * sy * sx + cz * cx
+    out[o + 5] = sz * sy * cx - cz * sx
+    out[o + 6] = -sy
+    out[o + 7] = cy * sx
+    out[o + 8] = cy * cx
+
+
+@njit(cache=True, nogil=True)
+def pose_at(keys, count, t, out):
+    """out[:12] = the pose (R row-major, T) at time t of keyframes keys[:count] (linear
+    interpolation of translation and Euler angles; held before the first and after the last)."""
+    if t <= keys[0, 0]:
+        k, w = 0, 0.0
+    elif t >= keys[count - 1, 0]:
+        k, w = count - 1, 0.0
+    else:
+        k = 0
+        while keys[k + 1, 0] <= t:
+            k += 1
+        w = (t - keys[k, 0]) / (keys[k + 1, 0] - keys[k, 0])
+    k2 = min(k + 1, count - 1)
+    v = np.empty(6)
+    for i in range(6):
+        v[i] = keys[k, 1 + i] + w * (keys[k2, 1 + i] - keys[k, 1 + i])
+    _euler_into(out, 0, v[3], v[4], v[5])
+    out[9], out[10], out[11] = v[0], v[1], v[2]
+
+
+# The transforms index the pose table directly: a view per point costs more than the
+# projection itself.
+
+@njit(cache=True, nogil=True, inline="always")
+def _to_rest(pose, c, s, px, py, pz, x, y, z):
+    """R^T (p - pivot - T) + pivot with the pose (R, T) = pose[c, s]."""
+    dx, dy, dz = x - px - pose[c, s, 9], y - py - pose[c, s, 10], z - pz - pose[c, s, 11]
+    return (px + pose[c, s, 0] * dx + pose[c, s, 3] * dy + pose[c, s, 6] * dz,
+            py + pose[c, s, 1] * dx + pose[c, s, 4] * dy + pose[c, s, 7] * dz,
+            pz + pose[c, s, 2] * dx + pose[c, s, 5] * dy + pose[c, s, 8] * dz)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def collide_point(kinds, params, x, y, z, lx, ly, lz):
-    """Apply every collider, in order, to the point at (x, y, z) that was at (lx, ly, lz)."""
+def _to_world(pose, c, s, px, py, pz, x, y, z):
+    """R (p - pivot) + pivot + T with the pose (R, T) = pose[c, s]."""
+    dx, dy, dz = x - px, y - py, z - pz
+    return (px + pose[c, s, 0] * dx + pose[c, s, 1] * dy + pose[c, s, 2] * dz + pose[c, s, 9],
+            py + pose[c, s, 3] * dx + pose[c, s, 4] * dy + pose[c, s, 5] * dz + pose[c, s, 10],
+            pz + pose[c, s, 6] * dx + pose[c, s, 7] * dy + pose[c, s, 8] * dz + pose[c, s, 11])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _project(kind, params, c, data, x, y, z, lx, ly, lz):
+    if kind == sphere.KIND:
+        return sphere.project(params, c, data, x, y, z, lx, ly, lz)
+    if kind == plane.KIND:
+        return plane.project(params, c, data, x, y, z, lx, ly, lz)
+    if kind == box.KIND:
+        return box.project(params, c, data, x, y, z, lx, ly, lz)
+    return mesh.project(params, c, data, x, y, z, lx, ly, lz)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def collide_point(kinds, params, data, key_count, pivot, pose, x, y, z, lx, ly, lz):
+    """Apply every collider, in order, to the point at (x, y, z) that was at (lx, ly, lz)
+    at the start of the step (the fields of a ColliderTable; poses from update_poses)."""
     for c in range(kinds.shape[0]):
         kind = kinds[c]
-        if kind == sphere.KIND:
-            x, y, z = sphere.project(params, c, x, y, z, lx, ly, lz)
-        elif kind == plane.KIND:
-            x, y, z = plane.project(params, c, x, y, z, lx, ly, lz)
+        if key_count[c] == 0:
+            x, y, z = _project(kind, params, c, data, x, y, z, lx, ly, lz)
+            continue
+        px, py, pz = pivot[c, 0], pivot[c, 1], pivot[c, 2]
+        rx, ry, rz = _to_rest(pose, c, 1, px, py, pz, x, y, z)
+        rlx, rly, rlz = _to_rest(pose, c, 0, px, py, pz, lx, ly, lz)
+        qx, qy, qz = _project(kind, params, c, data, rx, ry, rz, rlx, rly, rlz)
+        if qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
+            x, y, z = _to_world(pose, c, 1, px, py, pz, qx, qy, qz)
     return x, y, z
 
 
 @njit(cache=True, nogil=True)
-def collide_all(x, last, pinned, kinds, params):
-    """Apply the colliders to every free point of x (3, N)."""
-    if kinds.shape[0] == 0:
+def update_poses(table, t_start, t_end):
+    """Poses of the keyframed colliders at the start and the end of a step."""
+    for c in range(table.kinds.shape[0]):
+        n = table.key_count[c]
+        if n > 0:
+            pose_at(table.keys[c], n, t_start, table.pose[c, 0])
+            pose_at(table.keys[c], n, t_end, table.pose[c, 1])
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _collide_points(x, last, pinned, table):
+    kinds, params, data = table.kinds, table.params, table.data
+    key_count, pivot, pose = table.key_count, table.pivot, table.pose
+    n = x.shape[1]
+    for chunk in prange(CHUNKS):
+        for p in range((chunk * n) // CHUNKS, ((chunk + 1) * n) // CHUNKS):
+            if pinned[p]:
+                continue
+            x[0, p], x[1, p], x[2, p] = collide_point(
+                kinds, params, data, key_count, pivot, pose, x[0, p], x[1, p], x[2, p],
+                last[0, p], last[1, p], last[2, p])
+
+
+@njit(cache=True, nogil=True)
+def collide_all(x, last, pinned, table, t_start, t_end):
+    """Apply the colliders to every free point of x (3, N) for the step from t_start (when
+    the points were at `last`) to t_end."""
+    if table.kinds.shape[0] == 0:
         return
-    for p in range(x.shape[1]):
-        if pinned[p]:
-            continue
-        x[0, p], x[1, p], x[2, p] = collide_point(
-            kinds, params, x[0, p], x[1, p], x[2, p], last[0, p], last[1, p], last[2, p]
-        )
+    update_poses(table, t_start, t_end)
+    _collide_points(x, last, pinned, table)

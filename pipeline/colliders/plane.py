@@ -13,7 +13,7 @@ SCENE_TYPE = Plane
 SURFACE_OFFSET = 1e-4  # distance kept from the plane on the side the point came from
 
 
-def pack(p: Plane) -> np.ndarray:
+def pack(p: Plane, data) -> np.ndarray:
     nx, ny, nz = p.normal
     length = math.sqrt(nx * nx + ny * ny + nz * nz)
     return np.array(
@@ -27,7 +27,7 @@ def _sign(v):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def project(params, c, x, y, z, lx, ly, lz):
+def project(params, c, data, x, y, z, lx, ly, lz):
     px, py, pz = params[c, 0], params[c, 1], params[c, 2]
     nx, ny, nz, friction = params[c, 3], params[c, 4], params[c, 5], params[c, 6]
     s_now = (x - px) * nx + (y - py) * ny + (z - pz) * nz

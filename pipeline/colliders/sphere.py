@@ -10,12 +10,12 @@ KIND = 0
 SCENE_TYPE = Sphere
 
 
-def pack(s: Sphere) -> np.ndarray:
+def pack(s: Sphere, data) -> np.ndarray:
     return np.array([*s.origin, s.radius, s.friction], dtype=np.float64)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def project(params, c, x, y, z, lx, ly, lz):
+def project(params, c, data, x, y, z, lx, ly, lz):
     ox, oy, oz = params[c, 0], params[c, 1], params[c, 2]
     r, friction = params[c, 3], params[c, 4]
     dx, dy, dz = x - ox, y - oy, z - oz

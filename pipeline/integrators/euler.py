@@ -1,7 +1,7 @@
 """Explicit (forward) Euler on positions and velocities; its kernel also serves
 symplectic Euler (pipeline/integrators/symplectic_euler.py), which differs in one line.
 
-    a = F(x) / m - gamma v           (gamma = system.drag_rate: the scene's damping)
+    a = F(x, v, t) / m - gamma v      (gamma = system.drag_rate: the scene's damping)
     explicit:    x' = x + dt v,  v' = v + dt a
     symplectic:  v' = v + dt a,  x' = x + dt v'
 Pinned points never move and keep v = 0. After the update come the shared position passes
@@ -36,9 +36,9 @@ class VelocityState:
     def velocity(self, system: System) -> np.ndarray:
         return self.v.copy()
 
-    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
+    def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.predicted, self.force, steps,
-                       self.symplectic)
+                       first_step, self.symplectic)
 
 
 class State(VelocityState):
@@ -54,7 +54,7 @@ def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predict
             for a in range(3):
                 last[a, p] = x[a, p]
                 if not pinned[p]:
-                    acc = force[a, p] / mass - gamma * v[a, p]
+                    acc = force[a, p] / mass[p] - gamma * v[a, p]
                     if symplectic:
                         v[a, p] += dt * acc
                         x[a, p] += dt * v[a, p]
@@ -65,14 +65,15 @@ def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predict
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, steps, symplectic):
+def advance(s, x, v, last, predicted, force, steps, first_step, symplectic):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
     for step in range(steps):
-        total_force(x, s, force)
+        t = (first_step + step) * s.dt
+        total_force(x, v, t, s, force)
         euler_update(x, v, last, force, s.pinned, s.mass, gamma, s.dt, symplectic, predicted)
-        position_passes(x, last, s)
+        position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
         ok, kinetic, bound = step_guard(x, last, s)
         if not ok:

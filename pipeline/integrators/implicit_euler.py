@@ -1,8 +1,9 @@
 """Backward Euler linearised once per step (Baraff and Witkin 1998, "Large steps in cloth
 simulation", section 4), matrix-free, with a filtered preconditioned conjugate gradient.
 
-With f(x, v) = m g + spring forces(x) - gamma m v (gamma = system.drag_rate), K = df/dx at
-the start of the step (spring Jacobians, see forces.spring_jacobian) and df/dv = -gamma M:
+With f(x, v) = m g + spring forces(x) + other forces(x, v, t) - gamma m v (gamma =
+system.drag_rate), K = d(spring forces)/dx at the start of the step (spring Jacobians, see
+forces.spring_jacobian; the other forces, wind, enter explicitly) and df/dv = -gamma M:
 
     ((1 + dt gamma) M - dt^2 K) dv = dt (f(x, v) + dt K v),   v' = v + dv,   x' = x + dt v'.
 
@@ -41,9 +42,10 @@ class State(VelocityState):
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
 
-    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
+    def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.predicted, self.force,
-                       self.unit, self.alpha, self.buffer, self.work, self.iterations, steps)
+                       self.unit, self.alpha, self.buffer, self.work, self.iterations, steps,
+                       first_step)
 
 
 @njit(cache=True, nogil=True)
@@ -56,33 +58,36 @@ def _dot(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _apply(y, out, s, unit, alpha, buffer, diag_mass, h2):
-    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points)."""
+def _apply(y, out, s, unit, alpha, buffer, mass_factor, h2):
+    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points); mass_factor is
+    1 + h gamma."""
     spring_jacobian_product(y, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, out)
     for ax in range(3):
         for p in range(y.shape[1]):
-            out[ax, p] = 0.0 if s.pinned[p] else diag_mass * y[ax, p] - h2 * out[ax, p]
+            out[ax, p] = (0.0 if s.pinned[p] else
+                          mass_factor * s.mass[p] * y[ax, p] - h2 * out[ax, p])
 
 
 @njit(cache=True, nogil=True)
-def solve_step(s, x, v, force, unit, alpha, buffer, work, gamma):
-    """dv of one linearised backward-Euler step (in work[1]); returns CG iterations."""
+def solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma):
+    """dv of one linearised backward-Euler step from time t (in work[1]); returns CG
+    iterations."""
     h = s.dt
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
-    total_force(x, s, force)
+    total_force(x, v, t, s, force)
     spring_jacobian(x, s.offsets, s.exists, s.rest, s.stiffness, unit, alpha)
     spring_jacobian_product(v, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, q)
     spring_jacobian_diagonal(s.offsets, s.stiffness, unit, alpha, diag)
-    diag_mass = (1.0 + h * gamma) * s.mass
+    mass_factor = 1.0 + h * gamma
     for ax in range(3):
         for p in range(n):
             if s.pinned[p]:
                 b[ax, p] = 0.0
             else:
-                b[ax, p] = h * (force[ax, p] - gamma * s.mass * v[ax, p] + h * q[ax, p])
-            diag[ax, p] = diag_mass + h2 * diag[ax, p]
+                b[ax, p] = h * (force[ax, p] - gamma * s.mass[p] * v[ax, p] + h * q[ax, p])
+            diag[ax, p] = mass_factor * s.mass[p] + h2 * diag[ax, p]
             dv[ax, p] = 0.0
             r[ax, p] = b[ax, p]
             z[ax, p] = r[ax, p] / diag[ax, p]
@@ -91,7 +96,7 @@ def solve_step(s, x, v, force, unit, alpha, buffer, work, gamma):
     rz = _dot(r, z)
     iterations = 0
     while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
-        _apply(d, q, s, unit, alpha, buffer, diag_mass, h2)
+        _apply(d, q, s, unit, alpha, buffer, mass_factor, h2)
         dq = _dot(d, q)
         if not dq > 0.0:
             break
@@ -126,14 +131,16 @@ def _update(x, v, last, dv, pinned, dt, predicted):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, steps):
+def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, steps,
+            first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
     for step in range(steps):
-        iterations[0] += solve_step(s, x, v, force, unit, alpha, buffer, work, gamma)
+        t = (first_step + step) * s.dt
+        iterations[0] += solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma)
         _update(x, v, last, work[1], s.pinned, s.dt, predicted)
-        position_passes(x, last, s)
+        position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
         ok, kinetic, bound = step_guard(x, last, s)
         if not ok:

@@ -1,4 +1,4 @@
-"""Classical fourth-order Runge-Kutta on (x, v) with a(x, v) = F(x) / m - gamma v
+"""Classical fourth-order Runge-Kutta on (x, v) with a(x, v) = F(x, v, t) / m - gamma v
 (gamma = system.drag_rate: the scene's damping as a drag; see docs/integrators.md).
 
 Four force evaluations per step; the position passes (self-collision, colliders, Provot)
@@ -28,9 +28,9 @@ class State(VelocityState):
         self.sum_x = np.zeros_like(self.x)
         self.sum_v = np.zeros_like(self.x)
 
-    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
+    def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.predicted, self.force,
-                       self.stage_x, self.stage_v, self.sum_x, self.sum_v, steps)
+                       self.stage_x, self.stage_v, self.sum_x, self.sum_v, steps, first_step)
 
 
 @njit(cache=True, nogil=True, parallel=True)
@@ -45,7 +45,7 @@ def _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, pinned, mass, gamma, wei
                 continue
             for a in range(3):
                 kv = stage_v[a, p]
-                ka = force[a, p] / mass - gamma * kv
+                ka = force[a, p] / mass[p] - gamma * kv
                 sum_x[a, p] += weight * kv
                 sum_v[a, p] += weight * ka
                 if step > 0.0:
@@ -68,22 +68,26 @@ def _finish(x, v, last, sum_x, sum_v, pinned, dt, predicted):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, stage_x, stage_v, sum_x, sum_v, steps):
+def advance(s, x, v, last, predicted, force, stage_x, stage_v, sum_x, sum_v, steps,
+            first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     h = s.dt
     kinetic = bound = 0.0
     for step in range(steps):
+        t = (first_step + step) * h
         stage_x[:] = x
         stage_v[:] = v
         sum_x[:] = 0.0
         sum_v[:] = 0.0
-        for weight, next_step in ((1.0, 0.5 * h), (2.0, 0.5 * h), (2.0, h), (1.0, 0.0)):
-            total_force(stage_x, s, force)
+        # (weight of the stage, step to the next stage, time of this stage)
+        for weight, next_step, at in ((1.0, 0.5 * h, 0.0), (2.0, 0.5 * h, 0.5 * h),
+                                      (2.0, h, 0.5 * h), (1.0, 0.0, h)):
+            total_force(stage_x, stage_v, t + at, s, force)
             _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, s.pinned, s.mass, gamma,
                    weight, next_step)
         _finish(x, v, last, sum_x, sum_v, s.pinned, h, predicted)
-        position_passes(x, last, s)
+        position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, h)
         ok, kinetic, bound = step_guard(x, last, s)
         if not ok:

@@ -1,14 +1,15 @@
 """Verlet with damping, the classic model's integrator (SPEC section 2), exactly as the course.
 
 x' = x + (1 - damping) (x - x_last) + (F / m) dt^2; pinned points never move.
-State: positions x and last positions x_last, both (3, N).
+State: positions x and last positions x_last, both (3, N). Velocity-dependent forces (wind)
+see the velocity of the last step, (x - x_last) / dt.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit, prange
 
-from ..forces import CHUNKS, _chunk, spring_forces
+from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, position_passes, step_guard
 
 NAME = "verlet"
@@ -22,23 +23,25 @@ class State:
         self.x = system.x0.copy()
         self.last = system.x0.copy()
         self.force = np.zeros_like(system.x0)
+        self.v = np.zeros_like(system.x0)  # (x - last) / dt, when a force needs it
 
     def velocity(self, system: System) -> np.ndarray:
         return (self.x - self.last) / system.dt
 
-    def advance(self, system: System, steps: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.last, self.force, steps)
+    def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
+        return advance(system, self.x, self.last, self.v, self.force, steps, first_step)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _update(x, last, force, pinned, mass, keep, dt2, lo, hi):
     """The Verlet step of points [lo, hi); a vectorisable loop (pins are a select)."""
     pin = pinned[lo:hi]
+    m = mass[lo:hi]
     for a in range(3):
         xa, la, fa = x[a, lo:hi], last[a, lo:hi], force[a, lo:hi]
         for i in range(hi - lo):
             xi = xa[i]
-            moved = xi + keep * (xi - la[i]) + (fa[i] / mass) * dt2
+            moved = xi + keep * (xi - la[i]) + (fa[i] / m[i]) * dt2
             free = pin[i] == 0
             xa[i] = moved if free else xi
             la[i] = xi if free else la[i]
@@ -53,17 +56,22 @@ def _update_all(x, last, force, pinned, mass, keep, dt2):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, last, force, steps):
-    """Run `steps` steps. Returns (steps done, kinetic energy, bound); fewer steps than asked
-    means the divergence guard tripped after the last one (see system.energy_guard)."""
+def advance(s, x, last, v, force, steps, first_step):
+    """Run `steps` steps, the first being step number `first_step` of the run. Returns
+    (steps done, kinetic energy, bound); fewer steps than asked means the divergence guard
+    tripped after the last one (see system.energy_guard)."""
     keep = 1.0 - s.damping
     dt2 = s.dt * s.dt
     kinetic = bound = 0.0
     for step in range(steps):
-        spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-                      s.gravity, s.spring_force, force)
+        t = (first_step + step) * s.dt
+        if s.needs_velocity:
+            for a in range(3):
+                for p in range(x.shape[1]):
+                    v[a, p] = (x[a, p] - last[a, p]) / s.dt
+        total_force(x, v, t, s, force)
         _update_all(x, last, force, s.pinned, s.mass, keep, dt2)
-        position_passes(x, last, s)
+        position_passes(x, last, s, t)
         ok, kinetic, bound = step_guard(x, last, s)
         if not ok:
             return step + 1, kinetic, bound
