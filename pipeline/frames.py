@@ -43,6 +43,7 @@ def _cached_edges(model) -> np.ndarray:
     return e
 
 
+BOX_INSET = 2e-3  # metres: a box is drawn this much smaller on every side
 _KIND_NAMES = {Sphere: "sphere", Plane: "plane", Box: "box", MeshCollider: "mesh"}
 
 
@@ -54,8 +55,9 @@ def _collider_mesh(collider, k: int):
         m = shading.sphere_mesh(c.origin, c.radius)
     elif isinstance(c, Plane):
         m = shading.plane_mesh(c.point, c.normal)
-    elif isinstance(c, Box):
-        m = shading.box_mesh(c.center, c.half_extents, euler_matrix(c.rotation))
+    elif isinstance(c, Box):  # drawn a little inside, so cloth resting on it shows
+        inset = np.maximum(np.asarray(c.half_extents) - BOX_INSET, 0.5 * np.asarray(c.half_extents))
+        m = shading.box_mesh(c.center, inset, euler_matrix(c.rotation))
     else:
         m = shading.triangle_mesh(*collider_mesh_arrays(c))
     m.name = f"{_KIND_NAMES[type(c)]}_{k}"
@@ -75,10 +77,12 @@ def _posed(mesh, collider, time: float):
 
 def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:
     """[cloth, colliders in scene order] as shading.Mesh objects, keyframed colliders at
-    their pose at `time`. Static collider meshes are built once and shared between frames
+    their pose at `time`; the cloth takes the scene's `render.k_d` colour if it gives one. Static collider meshes are built once and shared between frames
     (read-only)."""
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model))
+    colour = scene.render.params.get("k_d", shading.mesh.CLOTH_COLOUR)  # the cloth's k_d
+    cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model),
+                               colour=colour)
     meshes = [cloth]
     counts: dict[type, int] = {}
     for c in scene.colliders:

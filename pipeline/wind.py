@@ -19,7 +19,7 @@ relative velocities of its rows plus a halo row, the forces of the cells touchin
 then gathers them on its points: no other synchronisation, and halo work is recomputed bit
 for bit, so the result does not depend on the banding. Per-point and per-triangle values are
 float32 (twice the SIMD width; forces to ~1e-6 relative), positions taken relative to the
-cloth's first point; gust phases and the final sums are float64.
+cloth's first point; the gust phases are computed, and the forces added to f, in float64.
 """
 from __future__ import annotations
 
@@ -102,7 +102,8 @@ def _set_phases(w, t, o0, o1, o2):
 
 @njit(cache=True, nogil=True)
 def _mode_tuples(w):
-    """The modes as tuples (values the compiler keeps in registers)."""
+    """The modes as tuples: values, not memory, so the per-point loop over the (unrolled)
+    modes needs no aliasing checks and vectorises."""
     md = w.modes
     return (to_fixed_tuple(w.phase, GUST_MODES), to_fixed_tuple(md[0], GUST_MODES),
             to_fixed_tuple(md[1], GUST_MODES), to_fixed_tuple(md[2], GUST_MODES),
@@ -152,11 +153,12 @@ def _relative(v, lo, hi, w, point):
         return
     px, py, pz = point[3, :m], point[4, :m], point[5, :m]
     modes = _mode_tuples(w)
+    for i in range(m):  # all float32: twice the SIMD width of the loop below
+        ox[i], oy[i], oz[i] = _gust(px[i], py[i], pz[i], modes)
     for i in range(m):
-        gx, gy, gz = _gust(px[i], py[i], pz[i], modes)
-        ox[i] = np.float32(vx[i] - ux) - gx
-        oy[i] = np.float32(vy[i] - uy) - gy
-        oz[i] = np.float32(vz[i] - uz) - gz
+        ox[i] = np.float32(vx[i] - ux) - ox[i]
+        oy[i] = np.float32(vy[i] - uy) - oy[i]
+        oz[i] = np.float32(vz[i] - uz) - oz[i]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, inline="always")
@@ -229,8 +231,10 @@ def _band(x, v, w, f, band):
         drag, lift = np.float32(w.drag), np.float32(w.lift)
         _triangles(point, 0, nw, 1, m, drag, lift, tri[0], t0)  # (A, C, B)
         _triangles(point, 1, nw, nw + 1, m, drag, lift, tri[1], t0)  # (B, C, D)
-        for t_wrap in range(t0 + nw - 1, t0 + m, nw):
-            tri[:, :, t_wrap] = 0.0
+        for t in range(t0 + nw - 1, t0 + m, nw):
+            for a in range(3):
+                tri[0, a, t] = 0.0
+                tri[1, a, t] = 0.0
     _gather(tri, f, r0 * nw, r1 * nw, t0 + (r0 - a0) * nw, nw)
 
 
@@ -246,7 +250,10 @@ def add_wind_force(x, v, t, w, f):
     if not w.enabled:
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
-    _all_bands(x, v, w, f)
+    if w.point.shape[0] == 1:
+        _band(x, v, w, f, 0)  # no thread launch for a single band
+    else:
+        _all_bands(x, v, w, f)
 
 
 @njit(cache=True, nogil=True)

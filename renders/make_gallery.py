@@ -40,12 +40,12 @@ COURSE_SIZE, COURSE_DURATION = 160, 2.0
 SHOWCASE = {
     "flag": (4.0, ("phong", "texture"),
              "a flag pinned along its left edge to a `box` pole, flying in a gusty `wind`"),
-    "tablecloth": (3.0, ("phong", "toon"),
+    "tablecloth": (3.0, ("phong", "normal"),
                    "a cloth with a heavier hem (`mass_map` image) dropped on a table made of "
                    "five `box` colliders: it drapes over the edges"),
-    "bowl": (3.0, ("phong", "wireframe"),
-             "a cloth falling into a concave `mesh` collider (scenes/meshes/bowl.obj)"),
-    "moving_sphere": (4.0, ("phong", "texture"),
+    "bowl": (3.0, ("phong", "mirror"),
+             "a cloth falling into a concave `mesh` collider, scenes/meshes/bowl.obj"),
+    "moving_sphere": (4.0, ("phong", "toon"),
                       "a cloth draped over a sphere that then slides sideways (`keyframes`); "
                       "friction 1 carries the cloth along"),
 }
@@ -159,9 +159,10 @@ def write_index(args, made) -> None:
         lines += [
             "## Showcase",
             "",
-            f"Wind, box and mesh colliders, keyframed colliders and mass maps "
-            f"(scenes/<name>.json): {args.fps:g} fps, {SHOWCASE_SIZE}x{SHOWCASE_SIZE}, "
-            "looping, phong and one other shader each.",
+            "Wind, box and mesh colliders, keyframed colliders and mass maps "
+            f"(scene files in [`scenes/`](../scenes/), keys in "
+            f"[`docs/scene-format.md`](../docs/scene-format.md)): {args.fps:g} fps, "
+            f"{SHOWCASE_SIZE}x{SHOWCASE_SIZE}, looping, phong and one other shader each.",
             "",
         ]
         rows = []
@@ -170,7 +171,7 @@ def write_index(args, made) -> None:
             cells = [f"![{s} {sh}]({made[s, sh].name})" for sh in shading.SHADERS
                      if (s, sh) in made]
             cells.sort(key=lambda c: "phong" not in c)  # phong first
-            rows.append((f"`{s}`", f"{what} ({duration:g} s)", *cells))
+            rows.append((f"[`{s}`](../scenes/{s}.json)", f"{what}; {duration:g} s", *cells))
         width = max(len(r) for r in rows)
         lines.append("| scene | shows |" + " |" * (width - 2))
         lines.append("|---" * width + "|")

@@ -1,6 +1,8 @@
 """Meshes, camera, textures and the image-comparison helper."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -61,6 +63,33 @@ def test_frames_meshes_and_default_camera():
     np.testing.assert_allclose(cam.target, (0.5, 0.5, 0.5), atol=1e-12)
     np.testing.assert_allclose(cam.eye, (0.5, 0.5, 2.3), atol=1e-12)
     assert (cam.vfov, cam.near, cam.far, cam.width, cam.height) == (35.0, 0.01, 100.0, 100, 80)
+
+
+def test_new_collider_kinds_are_drawn_posed_and_kd_colours_the_cloth():
+    """Box and mesh colliders get meshes (the box a hair inside its collision faces, so
+    cloth resting on it shows), keyframed colliders are drawn at their pose at the frame's
+    time, and render.k_d colours the cloth."""
+    d = json.loads((ROOT / "scenes" / "sphere.json").read_text())
+    d["render"] = {"k_d": [0.8, 0.2, 0.25]}
+    d["box"] = {"center": [0, 0, 0], "half_extents": [0.5, 0.1, 0.2], "friction": 0.3,
+                "rotation": [0, 90, 0]}
+    d["mesh"] = {"path": str(ROOT / "scenes" / "meshes" / "torus.obj"), "friction": 0.3,
+                 "translation": [1, 0, 0]}
+    d["sphere"]["keyframes"] = [{"time": 0}, {"time": 2, "translation": [0, 1, 0]}]
+    scene = load_scene(d)
+    model = build_model(scene)
+    at0 = scene_meshes(scene, model.initial_positions, model, 0.0)
+    at1 = scene_meshes(scene, model.initial_positions, model, 1.0)
+    assert [m.name for m in at0] == ["cloth", "sphere_0", "box_0", "mesh_0"]
+    np.testing.assert_allclose(at0[0].colour, (0.8, 0.2, 0.25))
+    box = at0[2].positions
+    # turned 90 degrees about y: the 0.5 half extent lies along z, drawn 2 mm inside
+    np.testing.assert_allclose(np.abs(box).max(axis=0), (0.198, 0.098, 0.498), atol=1e-12)
+    torus = at0[3].positions
+    np.testing.assert_allclose(torus.mean(axis=0), (1, 0, 0), atol=1e-6)
+    np.testing.assert_allclose(at1[1].positions - at0[1].positions, np.tile([0, 0.5, 0],
+                               (len(at0[1].positions), 1)), atol=1e-12)
+    assert at1[2] is at0[2]  # static colliders: one shared mesh
 
 
 def test_texture_errors_and_cache(tmp_path):

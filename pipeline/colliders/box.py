@@ -1,4 +1,5 @@
-"""Box collider: a point inside the oriented cuboid moves to the nearest face, with friction."""
+"""Box collider: a point inside the oriented cuboid moves to just outside the nearest face
+(SURFACE_OFFSET, as the plane collider keeps), with friction."""
 from __future__ import annotations
 
 import numpy as np
@@ -8,6 +9,7 @@ from ..scene import Box
 
 KIND = 2
 SCENE_TYPE = Box
+SURFACE_OFFSET = 1e-4  # distance kept outside the face
 
 
 def pack(b: Box, data) -> np.ndarray:
@@ -30,12 +32,13 @@ def project(params, c, data, x, y, z, lx, ly, lz):
     d0, d1, d2 = h0 - abs(q0), h1 - abs(q1), h2 - abs(q2)  # depth below each face pair
     if not (d0 > 0.0 and d1 > 0.0 and d2 > 0.0):
         return x, y, z
+    out = SURFACE_OFFSET
     if d0 <= d1 and d0 <= d2:  # out through the nearest face
-        q0 = h0 if q0 >= 0.0 else -h0
+        q0 = h0 + out if q0 >= 0.0 else -h0 - out
     elif d1 <= d2:
-        q1 = h1 if q1 >= 0.0 else -h1
+        q1 = h1 + out if q1 >= 0.0 else -h1 - out
     else:
-        q2 = h2 if q2 >= 0.0 else -h2
+        q2 = h2 + out if q2 >= 0.0 else -h2 - out
     tx = cx + params[c, 3] * q0 + params[c, 4] * q1 + params[c, 5] * q2
     ty = cy + params[c, 6] * q0 + params[c, 7] * q1 + params[c, 8] * q2
     tz = cz + params[c, 9] * q0 + params[c, 10] * q1 + params[c, 11] * q2
