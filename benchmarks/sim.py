@@ -2,7 +2,7 @@
 
     python benchmarks/sim.py             # all cases
     python benchmarks/sim.py --quick     # fewer repeats
-    python benchmarks/sim.py --features  # only the wind and mesh-collider cases (fast)
+    python benchmarks/sim.py --features  # only the wind, mesh-collider and FEM cases (fast)
 
 Per case: numba compile time (first call in a process with an empty cache, minus a warm call),
 steps per second and seconds per simulated second (best of several runs, warm), the C++
@@ -16,8 +16,11 @@ scene without wind, in a steady wind and in a gusty wind (cost of the aerodynami
 step; target: wind at most 1.3x the step without), and the sphere 50x50 scene with its
 analytic sphere against the same sphere as a 5120-triangle mesh collider
 (scenes/meshes/icosphere5k.obj scaled to the sphere; target: at most 2x per step), plus the
-one-off time to build the mesh's distance grid. These cases always take the best of at
-least 3 runs (they are short), --quick or not.
+one-off time to build the mesh's distance grid, and the pinned2 50x50 scene with the FEM
+cloth model (`simulation.model: fem`, its default material) against the classic model, both
+Verlet on the same grid with the same steps (target: FEM at most 2.5x per step), plus FEM
+with implicit Euler for information (us/step and CG iterations per step). These cases always
+take the best of at least 3 runs (they are short), --quick or not.
 """
 from __future__ import annotations
 
@@ -41,7 +44,7 @@ CASES = [  # (label, scene file, grid size or None for the file's own)
 ]
 STEADY_WIND = {"velocity": [1.5, 0.0, 3.0]}
 GUSTY_WIND = {"velocity": [1.5, 0.0, 3.0], "gust": 1.5, "gust_scale": 0.5, "gust_time": 0.5}
-WIND_TARGET, MESH_TARGET = 1.3, 2.0  # per-step cost ratios the features should stay within
+WIND_TARGET, MESH_TARGET, FEM_TARGET = 1.3, 2.0, 2.5  # per-step cost ratios to stay within
 FEATURE_REPEATS = 3  # at least, even with --quick: the ratios need a best of several runs
 
 
@@ -59,10 +62,18 @@ def sphere_as_mesh(raw: dict) -> dict:
     return out
 
 
+def with_simulation(raw: dict, **settings) -> dict:
+    """The scene with these `simulation` keys set (e.g. model="fem", integrator=...)."""
+    return dict(raw, simulation={**raw.get("simulation", {}), **settings})
+
+
 FEATURE_CASES = [  # (label, scene file, change of the scene); each group's first is its base
     ("pinned2 50x50", "pinned2.json", None),
     ("  + steady wind", "pinned2.json", lambda raw: with_wind(raw, STEADY_WIND)),
     ("  + gusty wind", "pinned2.json", lambda raw: with_wind(raw, GUSTY_WIND)),
+    ("  fem (verlet)", "pinned2.json", lambda raw: with_simulation(raw, model="fem")),
+    ("  fem implicit-euler", "pinned2.json",
+     lambda raw: with_simulation(raw, model="fem", integrator="implicit-euler")),
     ("sphere 50x50", "sphere.json", None),
     ("  icosphere5k mesh", "sphere.json", sphere_as_mesh),
 ]
@@ -97,10 +108,10 @@ def time_ours(raw: dict, repeats: int) -> tuple[float, int]:
     return best, frames * scene.simulation.steps_per_frame
 
 
-def time_alternating(raws: list[dict], repeats: int) -> list[tuple[float, int, float]]:
-    """(best wall time of one simulated second, steps, first Simulation() seconds) of each
-    scene, warm; the runs alternate between the scenes so that load from other processes
-    hits every scene alike."""
+def time_alternating(raws: list[dict], repeats: int) -> list[tuple[float, int, float, float]]:
+    """(best wall time of one simulated second, steps, first Simulation() seconds, CG
+    iterations per step or nan) of each scene, warm; the runs alternate between the scenes
+    so that load from other processes hits every scene alike."""
     from pipeline import Simulation, load_scene
 
     scenes = [load_scene(raw) for raw in raws]
@@ -111,24 +122,31 @@ def time_alternating(raws: list[dict], repeats: int) -> list[tuple[float, int, f
         setup.append(time.perf_counter() - t0)
         sim.advance(1)  # compile / load from cache
     best = [float("inf")] * len(scenes)
+    cg = [float("nan")] * len(scenes)
     for _ in range(repeats):
         for k, scene in enumerate(scenes):
             sim = Simulation(scene)
+            frames = int(round(scene.simulation.frames_per_sec))
             t0 = time.perf_counter()
-            sim.advance(int(round(scene.simulation.frames_per_sec)))
+            sim.advance(frames)
             best[k] = min(best[k], time.perf_counter() - t0)
-    return [(b, int(round(sc.simulation.frames_per_sec)) * sc.simulation.steps_per_frame, st)
-            for b, sc, st in zip(best, scenes, setup)]
+            count = getattr(sim._state, "iterations", None)  # implicit Euler's CG total
+            if count is not None:
+                cg[k] = float(count[0]) / (frames * scene.simulation.steps_per_frame)
+    return [(b, int(round(sc.simulation.frames_per_sec)) * sc.simulation.steps_per_frame, st, c)
+            for b, sc, st, c in zip(best, scenes, setup, cg)]
 
 
 def feature_cases(repeats: int) -> None:
-    """The wind and mesh-collider cases, with their per-step ratios to the plain scenes."""
+    """The wind, mesh-collider and FEM cases, with their per-step ratios to the plain
+    scenes."""
     raws = [change(scene_dict(file, None)) if change else scene_dict(file, None)
             for _, file, change in FEATURE_CASES]
     results = time_alternating(raws, max(repeats, FEATURE_REPEATS))
-    per_step = {}
-    for (label, _, _), (ours, steps, setup) in zip(FEATURE_CASES, results):
+    per_step, cg_per_step = {}, {}
+    for (label, _, _), (ours, steps, setup, cg) in zip(FEATURE_CASES, results):
         per_step[label] = ours / steps
+        cg_per_step[label] = cg
         print(f"{label:22s} {float('nan'):9.2f} {steps / ours:9.0f} {ours:8.3f} {'n/a':>7s} "
               f"{'n/a':>6s} {ours / steps * 1e6:8.1f}")
     base = per_step["pinned2 50x50"]
@@ -140,6 +158,14 @@ def feature_cases(repeats: int) -> None:
     print(f"per step, sphere 50x50 icosphere5k mesh / analytic sphere: {ratio:.2f}x "
           f"(target <= {MESH_TARGET:g}x{'' if ratio <= MESH_TARGET else ': MISSED'}); "
           f"setting up the mesh scene (distance grid) took {results[-1][2]:.2f} s")
+    fem, implicit = per_step["  fem (verlet)"], per_step["  fem implicit-euler"]
+    ratio = fem / base
+    print(f"per step, pinned2 50x50 fem / classic (both verlet, same grid and steps): "
+          f"{fem * 1e6:.1f} / {base * 1e6:.1f} us = {ratio:.2f}x "
+          f"(target <= {FEM_TARGET:g}x{'' if ratio <= FEM_TARGET else ': MISSED'})")
+    print(f"per step, pinned2 50x50 fem implicit-euler (information): {implicit * 1e6:.1f} us "
+          f"= {implicit / fem:.2f}x fem verlet, "
+          f"{cg_per_step['  fem implicit-euler']:.1f} CG iterations per step")
 
 
 def time_reference(raw: dict, repeats: int) -> float | None:
@@ -210,8 +236,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1 repeat instead of 3")
     ap.add_argument("--features", action="store_true",
-                    help="only the wind and mesh-collider cases (no course cases, start-up or "
-                         "memory figures)")
+                    help="only the wind, mesh-collider and FEM cases (no course cases, "
+                         "start-up or memory figures)")
     args = ap.parse_args()
     repeats = 1 if args.quick else 3
     import numba

@@ -1,12 +1,20 @@
 """Integrator benchmark: accuracy against wall-clock time, and the largest stable step.
 
-`main(argv)` (wired as `render bench SCENE.json [--out DIR]`) writes into DIR:
+`main(argv)` (wired as `render bench SCENE.json [--out DIR] [--models classic,fem]`) runs
+every part once per cloth model (`simulation.model`: the classic mass-spring model and the
+FEM, default both; every integrator runs with either) and writes into DIR:
     <scene>_work_precision.{png,svg,csv}  RMS position error at t = T against a converged
         reference (rk4 at a 16x smaller step than the scene's, checked against 32x), versus
-        wall-clock seconds, one line per integrator over a sweep of steps per frame;
-    <scene>_stability.{png,svg,csv}  largest stable step versus ks on a small copy of the
-        scene (--stability-grid, default 10x10), found by bisection, with the theoretical
-        explicit limit 2 / omega_max (pipeline.system.stability_limit).
+        wall-clock seconds, one line per integrator over a sweep of steps per frame; one
+        panel per model, side by side on the same axes (the csv has a `model` column);
+    <scene>_reference.json  the references' facts, per model;
+    <scene>_stability.{png,svg,csv}  largest stable step versus the stiffness (classic: ks;
+        FEM: cloth.fem.stretch, shear kept at the scene's shear/stretch ratio) on a small copy
+        of the scene (--stability-grid, default 10x10), found by bisection, with the
+        theoretical explicit limit 2 / omega_max (pipeline.system.stability_limit); one
+        panel per model.
+The work-precision runs use a copy of the scene at most DEFAULT_GRID points per side unless
+--grid says otherwise (--grid 0: the scene's own grid).
 See docs/integrators.md for the definitions and the measured results.
 
 Fair comparison rules:
@@ -15,6 +23,9 @@ Fair comparison rules:
     velocity lost per step at the scene's own step dt0) is a drag rate
     gamma = -ln(1 - c) / dt0, and a run at step dt gets c' = 1 - (1 - c)^(dt / dt0) per step
     (Verlet and XPBD use c' directly, the velocity-based methods use gamma);
+  * both models run the same scene (grid, pins, gravity, damping, colliders); the FEM reads
+    its material from cloth.fem (cloth.ks and cloth.density are ignored) and has no stretch
+    limit (Provot applies to the classic springs only);
   * Verlet starts from x_last = x0 + dt^2 a0 / 2 (the Taylor start for v0 = 0) instead of the
     classic x_last = x0, whose first step is O(dt) wrong in velocity and would make the
     method first order (`classic_start=True` keeps the classic start);
@@ -36,17 +47,21 @@ from pathlib import Path
 
 import numpy as np
 
-from .forces import spring_energy, total_force
+from .forces import elastic_energy, total_force
 from .integrators import state_class
 from .model import DIRECTION_TYPE, build_model
-from .scene import INTEGRATORS, Scene, load_scene
+from .scene import INTEGRATORS, MODELS, FemMaterial, Scene, load_scene
 from .system import System, build_system, stability_limit
 
 REFERENCE = "rk4"
 REFERENCE_FACTOR = 16  # the reference runs at dt_scene / 16 ...
 CHECK_FACTOR = 32  # ... and is checked against dt_scene / 32
 STEPS_PER_FRAME_SWEEP = (1, 2, 4, 8, 15, 30, 60, 120)
-KS_SWEEP = (1e2, 1e3, 1e4, 1e5, 1e6)
+KS_SWEEP = (1e2, 1e3, 1e4, 1e5, 1e6)  # classic model: cloth.ks (N/m)
+STRETCH_SWEEP = (3e1, 3e2, 3e3, 3e4)  # FEM: cloth.fem.stretch (N/m), the default 300 inside
+DEFAULT_GRID = 30  # work-precision grid (points per side) unless --grid: at most this
+STIFFNESS_LABEL = {"classic": "cloth.ks (N/m)",
+                   "fem": "cloth.fem.stretch (N/m; shear kept at the scene's shear/stretch)"}
 STRAIN_LIMIT = 0.25  # divergence: 99th percentile |strain| of an unconstrained probe step
 STABILITY_TIME = 0.5  # seconds simulated per stability trial ...
 MAX_STABILITY_STEPS = 20_000  # ... or this many steps if fewer (explicit Euler's tiny steps)
@@ -75,6 +90,48 @@ def resized(data: dict, nw: int, nh: int) -> dict:
                               for x, y in c["pinned"]})
         c["pinned"] = [list(p) for p in c["pinned"]]
     return data
+
+
+def with_model(data: dict, model: str) -> dict:
+    """A copy of the scene dict that runs `model` ("classic" or "fem")."""
+    if model not in MODELS:
+        raise ValueError(f"unknown model {model!r}: expected one of {', '.join(MODELS)}")
+    data = copy.deepcopy(data)
+    sim = data.setdefault("simulation", {})
+    sim["model"] = model
+    return data
+
+
+def with_stiffness(data: dict, model: str, value: float) -> dict:
+    """A copy of the scene dict with the stiffness the stability chart sweeps set to value:
+    cloth.ks for the classic model; cloth.fem.stretch for the FEM, with cloth.fem.shear
+    scaled alike (the material keeps its shear/stretch ratio; bending and density stay)."""
+    data = copy.deepcopy(data)
+    cloth = data["cloth"]
+    if model == "fem":
+        fem = dict(cloth.get("fem", {}))
+        material = FemMaterial(**{k: float(v) for k, v in fem.items()})
+        fem["shear"] = material.shear * value / material.stretch
+        fem["stretch"] = value
+        cloth["fem"] = fem
+    else:
+        cloth["ks"] = value
+    return data
+
+
+def material(data: dict, model: str, swept: bool = False) -> str:
+    """The model's material in words, for chart titles (swept: the stiffness is swept)."""
+    c = data["cloth"]
+    if model == "fem":
+        m = FemMaterial(**{k: float(v) for k, v in c.get("fem", {}).items()})
+        if swept:
+            return (f"FEM: stretch swept, shear {m.shear / m.stretch:g} x stretch, bending "
+                    f"{m.bending:g} N m, {m.density:g} kg/m^2")
+        return (f"FEM: stretch {m.stretch:g} N/m, shear {m.shear:g} N/m, bending "
+                f"{m.bending:g} N m, {m.density:g} kg/m^2")
+    if swept:
+        return f"classic mass-spring: ks swept, density {c['density']:g} kg/m^2"
+    return f"classic mass-spring: ks {c['ks']:g} N/m, density {c['density']:g} kg/m^2"
 
 
 class Run:
@@ -122,19 +179,31 @@ class Run:
     def x(self) -> np.ndarray:
         return self.state.x
 
+    @property
+    def model_name(self) -> str:
+        return self.scene.simulation.model
+
+    def cg_iterations(self) -> int | None:
+        """CG iterations summed over the steps done (implicit Euler), else None."""
+        count = getattr(self.state, "iterations", None)
+        return None if count is None else int(count[0])
+
     def energy(self) -> float:
-        """Kinetic + spring potential + gravity potential (J)."""
+        """Kinetic + elastic potential (springs or FEM) + gravity potential (J)."""
         s = self.system
         v = self.state.velocity(s)
         kinetic = 0.5 * float(np.sum(s.mass * v * v))
-        potential = spring_energy(self.state.x, s.offsets, s.exists, s.rest, s.stiffness)
+        potential = elastic_energy(self.state.x, s)
         gravity = -float(np.sum(s.mass * s.gravity[:, None] * self.state.x))
         return kinetic + potential + gravity
 
     def probe_strain(self, compression: bool = False) -> float:
         """99th percentile of |strain| over the force-carrying structural and shearing
         springs after one more step with Provot switched off (the state is not changed):
-        the stretch limit hides a blow-up as crumpling, this shows it."""
+        the stretch limit hides a blow-up as crumpling, this shows it. FEM model: the same
+        grid springs, measured geometrically (every structural and shearing pair, whatever
+        the classic enable flags; the FEM has no stretch limit, so the probe step is an
+        ordinary step)."""
         state = copy.deepcopy(self.state)
         s = self.system
         free = s._replace(limit=s.limit * 1e6, limit_sq_lo=s.limit_sq_lo * 1e12,
@@ -144,7 +213,7 @@ class Run:
         n = x.shape[1]
         strains = []
         for d in range(6):
-            if DIRECTION_TYPE[d] == 2 or s.stiffness[d] == 0.0:
+            if DIRECTION_TYPE[d] == 2 or (s.fem is None and s.stiffness[d] == 0.0):
                 continue
             p = np.nonzero(s.exists[d])[0]
             q = p + s.offsets[d]
@@ -179,7 +248,7 @@ def run_until(scene, integrator: str, dt: float, t_end: float, **kw) -> tuple[Ru
 
 
 def warm_up(scene) -> None:
-    """Compile every integrator (and the probe) on a tiny copy of the scene."""
+    """Compile every integrator of the scene's model (and the probe) on a tiny copy."""
     data = resized(scene_data(scene), 4, 4)
     for name in INTEGRATORS:
         run = Run(data, name)
@@ -191,18 +260,20 @@ def warm_up(scene) -> None:
 
 def work_precision(scene, t_end: float = 1.0, sweep=STEPS_PER_FRAME_SWEEP,
                    integrators=INTEGRATORS, log=print) -> tuple[list[dict], dict]:
-    """Rows (integrator, steps_per_frame, dt, error, seconds, ok) and reference facts."""
+    """Rows (model, integrator, steps_per_frame, dt, error, seconds, ok, ...) and reference
+    facts, for the scene's model."""
     base = Run(scene, REFERENCE)
+    model = base.model_name
     fps = base.scene.simulation.frames_per_sec
     dt0 = base.dt0
     ref, ok_ref, sec_ref = run_until(scene, REFERENCE, dt0 / REFERENCE_FACTOR, t_end)
     chk, ok_chk, sec_chk = run_until(scene, REFERENCE, dt0 / CHECK_FACTOR, t_end)
     if not (ok_ref and ok_chk):
         raise RuntimeError("the reference diverged")
-    info = {"t_end": t_end, "dt_scene": dt0, "reference_dt": dt0 / REFERENCE_FACTOR,
+    info = {"model": model, "t_end": t_end, "dt_scene": dt0, "reference_dt": dt0 / REFERENCE_FACTOR,
             "reference_check_rms": rms(ref.x, chk.x), "reference_seconds": sec_ref,
             "check_seconds": sec_chk}
-    log(f"reference {REFERENCE} dt={dt0 / REFERENCE_FACTOR:.3g}s ({sec_ref:.1f}s wall); "
+    log(f"[{model}] reference {REFERENCE} dt={dt0 / REFERENCE_FACTOR:.3g}s ({sec_ref:.1f}s wall); "
         f"RMS difference to dt/{CHECK_FACTOR}: {info['reference_check_rms']:.3g} m")
     rows = []
     for name in integrators:
@@ -212,12 +283,16 @@ def work_precision(scene, t_end: float = 1.0, sweep=STEPS_PER_FRAME_SWEEP,
             error = rms(run.x, ref.x) if ok else math.nan
             strain = run.probe_strain() if ok else math.inf
             crumpled = strain > STRAIN_LIMIT
-            rows.append({"integrator": name, "steps_per_frame": spf, "dt": dt,
+            cg = run.cg_iterations()
+            cg_per_step = cg / run.steps if cg is not None and run.steps else math.nan
+            rows.append({"model": model, "integrator": name, "steps_per_frame": spf, "dt": dt,
                          "rms_error": error, "seconds": seconds, "ok": ok and not crumpled,
-                         "guard_ok": ok, "probe_strain_p99": strain})
-            log(f"  {name:17s} spf={spf:4d} dt={dt:.3g} error={error:.3g} m "
+                         "guard_ok": ok, "probe_strain_p99": strain,
+                         "cg_iterations_per_step": cg_per_step})
+            log(f"  {model:7s} {name:17s} spf={spf:4d} dt={dt:.3g} error={error:.3g} m "
                 f"time={seconds:.3f}s guard={'ok' if ok else 'TRIPPED'} "
-                f"strain99={strain:.3f}{' CRUMPLED' if crumpled else ''}")
+                f"strain99={strain:.3f}{' CRUMPLED' if crumpled else ''}"
+                f"{f' cg/step={cg_per_step:.1f}' if cg is not None else ''}")
     return rows, info
 
 
@@ -229,7 +304,9 @@ def is_stable(data: dict, integrator: str, dt: float, t_end: float = STABILITY_T
     t_end / 2 and t_end the unconstrained probe step (Provot off) keeps the 99th percentile
     |strain| of the structural and shearing springs below STRAIN_LIMIT (2.5 times Provot's
     cap: a blow-up that the stretch limit turns into crumpling shows there; the first
-    steps' transient, e.g. of a huge implicit step, is not judged)."""
+    steps' transient, e.g. of a huge implicit step, is not judged). The FEM has no cap: its
+    probe step is an ordinary step, and the same 0.25 bounds its strain (a huge implicit
+    step's overshoot in the middle of the fall counts as a failure too)."""
     run = Run(data, integrator, dt=dt)
     total = min(max(round(t_end / dt), 8), MAX_STABILITY_STEPS)
     if not run.advance(total // 2) or run.probe_strain() > STRAIN_LIMIT:
@@ -263,13 +340,18 @@ def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
     return stable, ""
 
 
-def stability(scene, grid: int = 10, ks_values=KS_SWEEP, integrators=INTEGRATORS,
+def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
               log=print) -> list[dict]:
+    """Largest stable step per integrator and stiffness for the scene's model: ks_values are
+    cloth.ks (classic; default KS_SWEEP) or cloth.fem.stretch (FEM; default STRETCH_SWEEP,
+    see with_stiffness)."""
     rows = []
     data0 = resized(scene_data(scene), grid, grid)
+    model = data0.get("simulation", {}).get("model", "classic")
+    if ks_values is None:
+        ks_values = STRETCH_SWEEP if model == "fem" else KS_SWEEP
     for ks in ks_values:
-        data = copy.deepcopy(data0)
-        data["cloth"]["ks"] = ks
+        data = with_stiffness(data0, model, ks)
         probe = Run(data, "verlet")
         omega, dt_verlet = stability_limit(probe.model)
         dt_theory = 2.0 / omega
@@ -280,11 +362,12 @@ def stability(scene, grid: int = 10, ks_values=KS_SWEEP, integrators=INTEGRATORS
             hi = dt_theory * (200 if name in ("implicit-euler", "xpbd") else 16)
             t0 = time.perf_counter()
             dt, note = largest_stable_step(data, name, lo, hi)
-            rows.append({"integrator": name, "ks": ks, "dt_stable": dt, "bound": note,
+            rows.append({"model": model, "integrator": name, "stiffness": ks,
+                         "dt_stable": dt, "bound": note,
                          "omega_max": omega, "dt_theory": dt_theory,
                          "dt_verlet_damped": dt_verlet, "dt_euler_theory": dt_euler,
                          "ratio": dt / dt_theory})
-            log(f"  ks={ks:8.0f} {name:17s} dt_stable {note}{dt:.4g} s = {dt / dt_theory:.3g} x "
+            log(f"  {model:7s} k={ks:8.0f} {name:17s} dt_stable {note}{dt:.4g} s = {dt / dt_theory:.3g} x "
                 f"2/omega_max ({dt_theory:.4g} s; omega_max {omega:.4g}) "
                 f"[{time.perf_counter() - t0:.1f}s]")
     return rows
@@ -299,71 +382,103 @@ def write_csv(path: Path, rows: list[dict]) -> None:
         writer.writerows(rows)
 
 
-def chart_work_precision(rows, info, title: str, stem: Path) -> None:
+def _models(rows) -> list[str]:
+    present = {r["model"] for r in rows}
+    return [m for m in MODELS if m in present]
+
+
+def _panels(count: int, sharex: bool = True):
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 5.5))
-    for name in INTEGRATORS:
-        pts = [r for r in rows if r["integrator"] == name]
-        good = [r for r in pts if r["ok"]]
-        if good:
-            ax.loglog([r["seconds"] for r in good], [r["rms_error"] for r in good], "o-",
-                      color=COLORS[name], label=name)
-            for r in good:
-                ax.annotate(str(r["steps_per_frame"]), (r["seconds"], r["rms_error"]),
-                            fontsize=6, xytext=(3, 3), textcoords="offset points")
-        bad = [r for r in pts if not r["ok"] and math.isfinite(r["rms_error"])]
-        if bad:
-            ax.loglog([r["seconds"] for r in bad], [r["rms_error"] for r in bad], "x",
-                      color=COLORS[name], ms=7)
-    ax.axhline(info["reference_check_rms"], color="gray", ls=":", lw=1,
-               label="reference uncertainty (16x vs 32x)")
-    ax.set_xlabel("wall-clock seconds for the run (one thread)")
-    ax.set_ylabel(f"RMS position error at t = {info['t_end']:g} s (m)")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    fig, axes = plt.subplots(1, count, figsize=(6.6 * count, 5.6), sharex=sharex, sharey=True,
+                             squeeze=False)
+    return plt, fig, list(axes[0])
+
+
+def _save(plt, fig, stem: Path) -> None:
+    for ext in ("png", "svg"):
+        fig.savefig(stem.with_suffix("." + ext), dpi=130)
+    plt.close(fig)
+
+
+def chart_work_precision(rows, infos: dict, title: str, stem: Path,
+                         subtitles: dict | None = None) -> None:
+    """One panel per model (shared axes: the same scene, so errors and times compare)."""
+    models = _models(rows)
+    plt, fig, axes = _panels(len(models))
+    for model, ax in zip(models, axes):
+        info = infos[model]
+        failed = []
+        for name in INTEGRATORS:
+            pts = [r for r in rows if r["integrator"] == name and r["model"] == model]
+            good = [r for r in pts if r["ok"]]
+            if good:
+                ax.loglog([r["seconds"] for r in good], [r["rms_error"] for r in good], "o-",
+                          color=COLORS[name], label=name)
+                for r in good:
+                    ax.annotate(str(r["steps_per_frame"]), (r["seconds"], r["rms_error"]),
+                                fontsize=6, xytext=(3, 3), textcoords="offset points")
+            bad = [r for r in pts if not r["ok"] and math.isfinite(r["rms_error"])]
+            if bad:
+                ax.loglog([r["seconds"] for r in bad], [r["rms_error"] for r in bad], "x",
+                          color=COLORS[name], ms=7)
+            tripped = [str(r["steps_per_frame"]) for r in pts if not r["guard_ok"]]
+            if tripped:
+                failed.append(f"{name} {','.join(tripped)}")
+        ax.axhline(info["reference_check_rms"], color="gray", ls=":", lw=1,
+                   label="reference uncertainty (16x vs 32x)")
+        ax.set_xlabel("wall-clock seconds for the run (one thread)")
+        ax.set_ylabel(f"RMS position error at t = {info['t_end']:g} s (m)")
+        ax.set_title((subtitles or {}).get(model, model), fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8, loc="lower left")
+        if failed:
+            ax.text(0.99, 0.01, "diverged (guard), steps/frame:\n" + "\n".join(failed),
+                    transform=ax.transAxes, ha="right", va="bottom", fontsize=7,
+                    bbox={"facecolor": "white", "alpha": 0.8, "lw": 0})
+    fig.suptitle(title, fontsize=10)
     fig.text(0.01, 0.005, "labels: steps per frame; x: guard ok but crumpled "
              f"(probe strain p99 > {STRAIN_LIMIT})", fontsize=7)
-    fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(stem.with_suffix("." + ext), dpi=130)
-    plt.close(fig)
+    fig.tight_layout(rect=(0, 0.02, 1, 1))
+    _save(plt, fig, stem)
 
 
-def chart_stability(rows, title: str, stem: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(7.5, 5.5))
-    ks = sorted({r["ks"] for r in rows})
-    theory = [next(r["dt_theory"] for r in rows if r["ks"] == k) for k in ks]
-    euler_theory = [next(r["dt_euler_theory"] for r in rows if r["ks"] == k) for k in ks]
-    ax.loglog(ks, theory, "k--", lw=1.5, label="2 / omega_max (stability_limit)")
-    ax.loglog(ks, euler_theory, "k:", lw=1, label="explicit Euler: 2 gamma / (gamma^2 + omega^2)")
+def chart_stability(rows, title: str, stem: Path, subtitles: dict | None = None) -> None:
+    """One panel per model: largest stable step versus the model's stiffness."""
+    models = _models(rows)
+    plt, fig, axes = _panels(len(models), sharex=False)  # different stiffness scales
     offsets = {name: 1.0 + 0.03 * (i - 2.5) for i, name in enumerate(INTEGRATORS)}
-    for name in INTEGRATORS:
-        pts = sorted((r for r in rows if r["integrator"] == name), key=lambda r: r["ks"])
-        xs = [r["ks"] * offsets[name] for r in pts]
-        ax.loglog(xs, [r["dt_stable"] for r in pts], "o-", color=COLORS[name], label=name)
-        for r, x in zip(pts, xs):
-            if r["bound"]:
-                ax.annotate(r["bound"], (x, r["dt_stable"]), fontsize=8, color=COLORS[name],
-                            xytext=(4, -3), textcoords="offset points")
-    ax.set_xlabel("ks (N/m)")
-    ax.set_ylabel("largest stable step (s)")
-    ax.set_title(title, fontsize=10)
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
+    for model, ax in zip(models, axes):
+        mine = [r for r in rows if r["model"] == model]
+        ks = sorted({r["stiffness"] for r in mine})
+        theory = [next(r["dt_theory"] for r in mine if r["stiffness"] == k) for k in ks]
+        euler_theory = [next(r["dt_euler_theory"] for r in mine if r["stiffness"] == k)
+                        for k in ks]
+        ax.loglog(ks, theory, "k--", lw=1.5, label="2 / omega_max (stability_limit)")
+        ax.loglog(ks, euler_theory, "k:", lw=1,
+                  label="explicit Euler: 2 gamma / (gamma^2 + omega^2)")
+        for name in INTEGRATORS:
+            pts = sorted((r for r in mine if r["integrator"] == name),
+                         key=lambda r: r["stiffness"])
+            if not pts:
+                continue
+            xs = [r["stiffness"] * offsets[name] for r in pts]
+            ax.loglog(xs, [r["dt_stable"] for r in pts], "o-", color=COLORS[name], label=name)
+            for r, x in zip(pts, xs):
+                if r["bound"]:
+                    ax.annotate(r["bound"], (x, r["dt_stable"]), fontsize=8,
+                                color=COLORS[name], xytext=(4, -3), textcoords="offset points")
+        ax.set_xlabel(STIFFNESS_LABEL[model])
+        ax.set_ylabel("largest stable step (s)")
+        ax.set_title((subtitles or {}).get(model, model), fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    for ext in ("png", "svg"):
-        fig.savefig(stem.with_suffix("." + ext), dpi=130)
-    plt.close(fig)
+    _save(plt, fig, stem)
 
 
 # --- entry point ----------------------------------------------------------------------------
@@ -372,18 +487,31 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="render bench", description=__doc__.split("\n")[0])
     parser.add_argument("scene", help="scene JSON")
     parser.add_argument("--out", default="renders/bench", help="output folder")
-    parser.add_argument("--grid", type=int, default=0,
-                        help="cloth points per side for the work-precision runs (0: the scene's)")
+    parser.add_argument("--models", default=",".join(MODELS),
+                        help="cloth models to compare, comma-separated (default: "
+                             f"{','.join(MODELS)}); each runs the integrators scenes accept with it")
+    parser.add_argument("--grid", type=int, default=None,
+                        help="cloth points per side for the work-precision runs (default: the "
+                             f"scene's, at most {DEFAULT_GRID}; 0: the scene's own)")
     parser.add_argument("--stability-grid", type=int, default=10,
                         help="cloth points per side for the stability search (default 10)")
     parser.add_argument("--time", type=float, default=1.0, help="simulated seconds (default 1)")
     parser.add_argument("--sweep", default=",".join(map(str, STEPS_PER_FRAME_SWEEP)),
                         help="steps per frame to try, comma-separated")
     parser.add_argument("--ks", default=",".join(f"{k:g}" for k in KS_SWEEP),
-                        help="ks values of the stability search, comma-separated")
+                        help="classic model: ks values of the stability search, comma-separated")
+    parser.add_argument("--stretch", default=",".join(f"{k:g}" for k in STRETCH_SWEEP),
+                        help="FEM: cloth.fem.stretch values of the stability search, "
+                             "comma-separated (shear scaled alike)")
     parser.add_argument("--skip-stability", action="store_true")
     parser.add_argument("--skip-work-precision", action="store_true")
     args = parser.parse_args(argv)
+    models = [m.strip() for m in args.models.split(",") if m.strip()]
+    unknown = [m for m in models if m not in MODELS]
+    if unknown or not models:
+        parser.error(f"--models: unknown model {', '.join(unknown) or '(none)'}; expected "
+                     f"a comma-separated list of {', '.join(MODELS)}")
+    args.models = [m for m in MODELS if m in models]
 
     set_threads(1)
     with warnings.catch_warnings():
@@ -396,30 +524,52 @@ def _bench(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = scene_data(args.scene)
     name = Path(args.scene).stem
-    if args.grid:
-        data = resized(data, args.grid, args.grid)
     c = data["cloth"]
-    size = f"{c['num_width_points']}x{c['num_height_points']}"
+    nw, nh = c["num_width_points"], c["num_height_points"]
+    if args.grid is None:
+        grid = (min(nw, DEFAULT_GRID), min(nh, DEFAULT_GRID))
+    else:
+        grid = (args.grid, args.grid) if args.grid else (nw, nh)
+    if grid != (nw, nh):
+        data = resized(data, *grid)
+    size = f"{grid[0]}x{grid[1]}"
+    per_model = {m: with_model(data, m) for m in args.models}
+    subtitles = {m: material(d, m) for m, d in per_model.items()}
     t0 = time.perf_counter()
-    warm_up(data)
+    for model in args.models:
+        warm_up(per_model[model])
     print(f"compiled in {time.perf_counter() - t0:.1f}s")
     if not args.skip_work_precision:
+        t1 = time.perf_counter()
         sweep = tuple(int(v) for v in args.sweep.split(","))
-        print(f"work-precision on {name} ({size}), t = {args.time} s")
-        rows, info = work_precision(data, args.time, sweep)
+        print(f"work-precision on {name} ({size}), t = {args.time} s, models "
+              f"{', '.join(args.models)}")
+        rows, infos = [], {}
+        for model in args.models:
+            model_rows, infos[model] = work_precision(per_model[model], args.time, sweep)
+            rows += model_rows
         stem = out / f"{name}_work_precision"
         write_csv(stem.with_suffix(".csv"), rows)
-        (out / f"{name}_reference.json").write_text(json.dumps(info, indent=2) + "\n")
-        chart_work_precision(rows, info, f"{name} ({size}, damping {c['damping']}%): error at "
-                             f"t = {args.time:g} s vs {REFERENCE} at dt/{REFERENCE_FACTOR}", stem)
+        (out / f"{name}_reference.json").write_text(json.dumps(infos, indent=2) + "\n")
+        chart_work_precision(rows, infos, f"{name} ({size}, damping {c['damping']}%): error "
+                             f"at t = {args.time:g} s vs {REFERENCE} at dt/{REFERENCE_FACTOR}",
+                             stem, subtitles)
+        print(f"work-precision took {time.perf_counter() - t1:.1f}s")
     if not args.skip_stability:
+        t1 = time.perf_counter()
         g = args.stability_grid
         print(f"stability on {name} ({g}x{g})")
-        rows = stability(data, g, tuple(float(k) for k in args.ks.split(",")))
+        sweeps = {"classic": args.ks, "fem": args.stretch}
+        rows = []
+        for model in args.models:
+            rows += stability(per_model[model], g,
+                              tuple(float(k) for k in sweeps[model].split(",")))
         stem = out / f"{name}_stability"
         write_csv(stem.with_suffix(".csv"), rows)
         chart_stability(rows, f"{name} ({g}x{g}): largest stable step over {STABILITY_TIME} s "
-                        f"(guard + probe strain p99 < {STRAIN_LIMIT})", stem)
+                        f"(guard + probe strain p99 < {STRAIN_LIMIT})", stem,
+                        {m: material(d, m, swept=True) for m, d in per_model.items()})
+        print(f"stability took {time.perf_counter() - t1:.1f}s")
     print(f"done in {time.perf_counter() - t0:.1f}s; wrote {out}")
     return 0
 

@@ -19,24 +19,25 @@ signed dihedral angle (atan2, smooth through 0). k_bend is the flexural rigidity
 cylindrical bend of curvature kappa along a grid direction costs D kappa^2 / 2 per unit
 area (the discrete-shells energy 3 |e|^2 / (A1 + A2) theta^2 with stiffness D / 6).
 
-Layout. Every element is anchored at a point (triangles and the diagonal and vertical edges
-at A, the horizontal edge A-B at A) and each element kind keeps its per-anchor constants in
-its own rows, so a pass over one kind is a loop over contiguous slices. The 18
-(kind, local vertex) *slots* are: 0-2 triangle (A, C, B), 3-5 triangle (B, C, D), 6-9
-diagonal edge B-C, 10-13 horizontal edge A-B, 14-17 vertical edge A-C; slot s belongs to the
-point anchor + slot_offsets[s]. The element passes write per-element results to
-`work[s, axis, pad + anchor]`; then each point sums its 18 slots in slot order, a fixed
-per-point order (the grid's implicit CSR list): results are bit-for-bit the same for any
-number of threads, with no atomic or racy scatter.
+Layout. The anchor A = i nw + j holds the elements of cell (i, j): its triangles and three
+hinges (bending edges: the diagonal B-C, the horizontal A-B shared with the cell above, the
+vertical A-C shared with the cell to the left). Each element kind keeps its constants in
+per-anchor rows, so a pass over one kind is a loop over consecutive anchors. The elements of
+an anchor touch the points A, B, C, D, E = (i-1, j+1) and F = (i+1, j-1), all within one row
+of the anchor's row. Passes add each element's vertex forces straight into the output; to
+do that without races, the cell rows are cut into bands of at least two rows, and the even
+bands run in parallel, then the odd ones: two bands running together never touch the same
+point. Every point sums its contributions in the same order whatever the number of threads,
+so results are bit-for-bit reproducible (no atomics, no racy scatter).
 
 Speed. LLVM vectorises a loop only if it can check at run time that its arrays do not
-overlap, and gives up beyond a handful of arrays. So every element computation is split into
-small passes of at most 14 input and 6 output slices (positions -> deformation -> stress ->
-per-vertex forces), with the intermediate rows in `scratch`. Only the exact bending Hessian
-(`fem_jacobian_product`, a reference for tests and Newton solvers) is a scalar loop.
-
-`work` and `scratch` belong to the FemParams: two kernels must not run on the same FemParams
-at the same time.
+overlap, and gives up beyond a handful of rows. So every element computation is split into
+passes of at most ~14 input and 6 output rows (positions -> deformation -> stress -> vertex
+forces), with intermediate rows in `scratch`. Loops index with unsigned integers (no
+wraparound test) and make no array views (each would cost atomic reference counts). Only the
+exact bending Hessian (`fem_jacobian_product`, a reference for tests and Newton solvers) is a
+scalar loop. `scratch` belongs to the FemParams: two kernels must not run on the same
+FemParams at the same time.
 """
 from __future__ import annotations
 
@@ -45,8 +46,6 @@ from typing import NamedTuple
 
 import numpy as np
 from numba import njit, prange
-
-from .forces import CHUNKS, _chunk
 
 
 class FemParams(NamedTuple):
@@ -61,19 +60,27 @@ class FemParams(NamedTuple):
     x_rest: np.ndarray  # (3, N) the flat rest sheet (u, v, 0)
     tri_area: np.ndarray  # (2, N) rest area of triangle kind t anchored at p, 0 if none
     tri_inv: np.ndarray  # (2, 4, N) R^-1 entries (00, 01, 10, 11) of that triangle
-    edge_factor: np.ndarray  # (3, N) |e|^2 / (2 (A1 + A2)) of edge kind k at p, 0 if none
-    slot_offsets: np.ndarray  # (18,) int64, point of slot s = anchor + slot_offsets[s]
-    pad: int  # anchor p is column p + pad of `work`
-    work: np.ndarray  # (18, 3, N + 2 pad) per-slot results of the element passes
-    scratch: np.ndarray  # (18, N) intermediate rows of the element passes
+    edge_factor: np.ndarray  # (3, N) |e|^2 / (2 (A1 + A2)) of hinge kind k at p, 0 if none
+    offsets: np.ndarray  # (6,) int64, index of A, B, C, D, E, F minus the anchor's
+    scratch: np.ndarray  # (18, N) intermediate rows of the passes
 
 
-TRIANGLE_KINDS, EDGE_KINDS, SLOTS, SCRATCH_ROWS = 2, 3, 18, 18
-FORCE, PRODUCT, FILTERED_PRODUCT, DIAGONAL = 0, 1, 2, 3  # what an element pass computes
+TRIANGLE_KINDS, HINGE_KINDS, SCRATCH_ROWS = 2, 3, 18
+# the points (indices into offsets) of each element's vertices: triangles (A, C, B),
+# (B, C, D); hinges (a, b, c, d) with edge a-b and triangles (a, b, c), (b, a, d): diagonal
+# (C, B, A, D), horizontal (B, A, C, E), vertical (A, C, B, F)
+TRIANGLE_VERTICES = np.array([[0, 2, 1], [1, 2, 3]], dtype=np.int64)
+HINGE_VERTICES = np.array([[2, 1, 0, 3], [1, 0, 2, 4], [0, 2, 1, 5]], dtype=np.int64)
+# d theta / dx at the hinge vertices a, b, c, d is (e1 |e| + f1 t1) q1 + (e2 |e| + f2 t2) q2
+# with these (e1, f1, e2, f2) (see _hinge_gradient)
+HINGE_GRADIENT = ((1.0, -1.0, 1.0, -1.0), (0.0, 1.0, 0.0, 1.0), (-1.0, 0.0, 0.0, 0.0),
+                  (0.0, 0.0, -1.0, 0.0))
+MAX_BANDS = 16
+FORCE, PRODUCT, FILTERED_PRODUCT, DIAGONAL = 0, 1, 2, 3  # what the element pass computes
 # scratch rows: triangles w_u, w_v, dE/dw_u, dE/dw_v, dw_u, dw_v (3 each)
 WU, WV, PU, PV, DWU, DWV = 0, 3, 6, 9, 12, 15
-# hinges: N1 (3), t1, |e|, N2 (3), t2, theta, S1 (3), S2 (3), d theta (or ones)
-N1, T1, LENGTH, N2, T2, THETA, S1, S2, DTHETA = 0, 3, 4, 5, 8, 9, 10, 13, 16
+# hinges: N1 (3), t1, |e|, 1 / |e|, N2 (3), t2, theta, S1 (3), S2 (3), d theta (or ones)
+N1, T1, LENGTH, INV_LENGTH, N2, T2, THETA, S1, S2, DTHETA = 0, 3, 4, 5, 6, 9, 10, 11, 14, 17
 
 # cephes atan: rational approximation on |z| <= 0.66, ~1 ulp; branch-free so loops vectorise
 _P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
@@ -83,14 +90,9 @@ _Q = (2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668
 _MOREBITS = 6.123233995736765886130e-17
 
 
-def slot_offsets(nw: int) -> np.ndarray:
-    """Point of each slot relative to its element's anchor (see the module docstring)."""
-    return np.array([0, nw, 1,  # triangle (A, C, B)
-                     1, nw, nw + 1,  # triangle (B, C, D)
-                     nw, 1, 0, nw + 1,  # diagonal B-C: a = C, b = B, c = A, d = D
-                     1, 0, nw, 1 - nw,  # horizontal A-B: a = B, b = A, c = C, d = (i-1, j+1)
-                     0, nw, 1, nw - 1],  # vertical A-C: a = A, b = C, c = B, d = (i+1, j-1)
-                    dtype=np.int64)
+def point_offsets(nw: int) -> np.ndarray:
+    """Index of A, B, C, D, E, F minus the index of the anchor A."""
+    return np.array([0, 1, nw, nw + 1, 1 - nw, nw - 1], dtype=np.int64)
 
 
 def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
@@ -101,34 +103,33 @@ def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
     n = nw * nh
     i, j = np.divmod(np.arange(n), nw)
     uv = np.stack([width * j / (nw - 1), height * i / (nh - 1)])
-    offsets = slot_offsets(nw)
+    offsets = point_offsets(nw)
     cell = (i < nh - 1) & (j < nw - 1)
     tri_area = np.zeros((TRIANGLE_KINDS, n))
     tri_inv = np.zeros((TRIANGLE_KINDS, 4, n))
     for t in range(TRIANGLE_KINDS):
         p = np.nonzero(cell)[0]
-        x0, x1, x2 = (uv[:, p + offsets[3 * t + k]] for k in range(3))
+        x0, x1, x2 = (uv[:, p + offsets[TRIANGLE_VERTICES[t, m]]] for m in range(3))
         r = np.stack([x1 - x0, x2 - x0], axis=-1).transpose(1, 0, 2)  # (P, 2 uv, 2 edges)
         tri_area[t, p] = 0.5 * np.abs(np.linalg.det(r))
         tri_inv[t, :, p] = np.linalg.inv(r).reshape(-1, 4)
     edge_exists = (cell,  # diagonal
                    (i > 0) & (i < nh - 1) & (j < nw - 1),  # horizontal
                    (i < nh - 1) & (j > 0) & (j < nw - 1))  # vertical
-    edge_factor = np.zeros((EDGE_KINDS, n))
-    for k in range(EDGE_KINDS):
+    edge_factor = np.zeros((HINGE_KINDS, n))
+    for k in range(HINGE_KINDS):
         p = np.nonzero(edge_exists[k])[0]
-        a, b, c, d = (uv[:, p + offsets[6 + 4 * k + m]] for m in range(4))
+        a, b, c, d = (uv[:, p + offsets[HINGE_VERTICES[k, m]]] for m in range(4))
         e, ca, da = b - a, c - a, d - a
         area1 = 0.5 * np.abs(e[0] * ca[1] - e[1] * ca[0])
         area2 = 0.5 * np.abs(da[0] * e[1] - da[1] * e[0])
         edge_factor[k, p] = (e[0] ** 2 + e[1] ** 2) / (2.0 * (area1 + area2))
-    pad = nw + 1
     return FemParams(
         nw=nw, nh=nh, width=float(width), height=float(height), k_stretch=float(k_stretch),
         k_shear=float(k_shear), k_bend=float(k_bend), density=float(density),
         x_rest=np.ascontiguousarray(np.vstack([uv, np.zeros(n)])),
-        tri_area=tri_area, tri_inv=tri_inv, edge_factor=edge_factor, slot_offsets=offsets,
-        pad=pad, work=np.zeros((SLOTS, 3, n + 2 * pad)), scratch=np.zeros((SCRATCH_ROWS, n)),
+        tri_area=tri_area, tri_inv=tri_inv, edge_factor=edge_factor, offsets=offsets,
+        scratch=np.zeros((SCRATCH_ROWS, n)),
     )
 
 
@@ -138,40 +139,41 @@ def lumped_masses(params: FemParams) -> np.ndarray:
     for t in range(TRIANGLE_KINDS):
         p = np.nonzero(params.tri_area[t])[0]
         for k in range(3):
-            np.add.at(area, p + params.slot_offsets[3 * t + k], params.tri_area[t, p] / 3.0)
+            np.add.at(area, p + params.offsets[TRIANGLE_VERTICES[t, k]],
+                      params.tri_area[t, p] / 3.0)
     return params.density * area
 
 
 # --- 3-vectors as tuples (LLVM keeps them in registers) ---------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _comb(a, s, b, t):
     """s a + t b."""
     return (s * a[0] + t * b[0], s * a[1] + t * b[1], s * a[2] + t * b[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _scale(a, s):
     return (s * a[0], s * a[1], s * a[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _atan2(y, x):
     """atan2(y, x) without a library call or branch (cephes atan, within 2 ulp)."""
     ay, ax = abs(y), abs(x)
@@ -191,14 +193,14 @@ def _atan2(y, x):
 # --- one element (membrane: w_u, w_v; hinge: edge a-b, triangles (a, b, c), (b, a, d)) -----
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _deformation(x0, x1, x2, i00, i01, i10, i11):
     """(w_u, w_v) of the triangle at positions x0, x1, x2."""
     e1, e2 = _sub(x1, x0), _sub(x2, x0)
     return _comb(e1, i00, e2, i10), _comb(e1, i01, e2, i11)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _membrane_stress(wu, wv, ka, kb):
     """(dE/dw_u, dE/dw_v) with ka = a k_stretch, kb = a k_shear."""
     lu, lv = math.sqrt(_dot(wu, wu)), math.sqrt(_dot(wv, wv))
@@ -208,7 +210,7 @@ def _membrane_stress(wu, wv, ka, kb):
     return _comb(wu, su, wv, s), _comb(wv, sv, wu, s)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _stretch_hessian(w, dw, ka, filtered):
     """ka (alpha I + (1 - alpha) u u^T) dw, u = w / |w|, alpha = 1 - 1 / |w| (clamped at 0 if
     filtered): the derivative of ka (|w| - 1) u along dw."""
@@ -219,7 +221,7 @@ def _stretch_hessian(w, dw, ka, filtered):
     return _comb(dw, ka * alpha, u, ka * (1.0 - alpha) * _dot(u, dw))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _membrane_hessian(wu, wv, dwu, dwv, ka, kb, filtered):
     """Derivative of (dE/dw_u, dE/dw_v) along (dw_u, dw_v); filtered keeps its positive
     semi-definite part (compressed stretch loses its transverse term, shear its
@@ -232,11 +234,11 @@ def _membrane_hessian(wu, wv, dwu, dwv, ka, kb, filtered):
             (hv[0] + gv[0], hv[1] + gv[1], hv[2] + gv[2]))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _membrane_diagonal(w, other, ka, kb):
-    """One axis of the filtered Hessian's diagonal in w-space: d^2 E / dw^2 for w one of
-    (w_u, w_v) and `other` the other one (ka (alpha + (1 - alpha) u_axis^2) + kb other_axis^2)
-    as a function of the three components of w; returns the three diagonal entries."""
+    """Diagonal of the filtered d^2 E / dw^2 (3 x 3) for w one of (w_u, w_v) and `other` the
+    other: ka (alpha + (1 - alpha) u_axis^2) + kb other_axis^2, u = w / |w|, alpha =
+    max(0, 1 - 1 / |w|)."""
     length = math.sqrt(_dot(w, w))
     inv = 1.0 / length if length > 0.0 else 0.0
     alpha = max(1.0 - inv, 0.0)
@@ -246,32 +248,31 @@ def _membrane_diagonal(w, other, ka, kb):
             ka * (alpha + (1.0 - alpha) * u[2] * u[2]) + kb * other[2] * other[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _normal_one(a, b, c):
-    """Triangle 1 of a hinge: N1 = e x (c - a), t1 = (c - a) . e / |e|, |e| (e = b - a)."""
+    """Triangle 1 of a hinge: N1 = e x (c - a), t1 = (c - a) . e / |e|, |e|, 1 / |e| (0 for
+    a zero edge); e = b - a."""
     e, ca = _sub(b, a), _sub(c, a)
     length = math.sqrt(_dot(e, e))
     il = 1.0 / length if length > 0.0 else 0.0
-    return _cross(e, ca), _dot(ca, e) * il, length
+    return _cross(e, ca), _dot(ca, e) * il, length, il
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _normal_two(a, b, d, n1):
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+def _normal_two(a, b, d, n1, length, il):
     """Triangle 2 of a hinge: N2 = (d - a) x e, t2 = (d - a) . e / |e|, and the dihedral angle
     theta = atan2(e^ . (N1 x N2), N1 . N2) = atan2(-|e| N1 . (d - a), N1 . N2)."""
     e, da = _sub(b, a), _sub(d, a)
-    length = math.sqrt(_dot(e, e))
-    il = 1.0 / length if length > 0.0 else 0.0
     n2 = _cross(da, e)
     return n2, _dot(da, e) * il, _atan2(-length * _dot(n1, da), _dot(n1, n2))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _hinge(a, b, c, d):
     """Dihedral angle theta, validity (no zero-length edge or zero-area triangle) and what
     the Hessian needs; the inverses are 0 for an invalid hinge, so its gradient is 0."""
-    n1, t1, length = _normal_one(a, b, c)
-    n2, t2, theta = _normal_two(a, b, d, n1)
+    n1, t1, length, il = _normal_one(a, b, c)
+    n2, t2, theta = _normal_two(a, b, d, n1, length, il)
     n1sq, n2sq = _dot(n1, n1), _dot(n2, n2)
     ok = (n1sq > 0.0) & (n2sq > 0.0) & (length > 0.0)
     inv1 = 1.0 / n1sq if ok else 0.0
@@ -279,14 +280,14 @@ def _hinge(a, b, c, d):
     return theta, ok, length, n1, n2, inv1, inv2, t1, t2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _hinge_gradient(length, q1, q2, t1, t2):
     """d theta / d(a, b, c, d), q_k = N_k / |N_k|^2."""
     return (_comb(q1, length - t1, q2, length - t2), _comb(q1, t1, q2, t2),
             _scale(q1, -length), _scale(q2, -length))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _hinge_gradient_derivative(a, b, c, d, ya, yb, yc, yd, length, n1, n2, inv1, inv2, t1,
                                t2):
     """Derivative of d theta / d(a, b, c, d) along the displacement (ya, yb, yc, yd)."""
@@ -311,322 +312,280 @@ def _hinge_gradient_derivative(a, b, c, d, ya, yb, yc, yd, length, n1, n2, inv1,
     return ga, gb, gc, gd
 
 
-# --- vectorised passes: each a loop over the slices of one element kind -----------------------
-# Arguments are tuples of slices, unpacked before the loop (an array taken from a tuple
-# inside a loop costs a reference count per iteration and stops vectorisation).
-
-
-@njit(cache=True, nogil=True)
-def _rows(x, start, stop):
-    return x[0, start:stop], x[1, start:stop], x[2, start:stop]
+# --- passes: one loop over the m elements of one kind anchored at s, s + 1, ..., s + m - 1 ----
+# s, m and the vertex columns c (the vertex of the element anchored at s + i is column c + i)
+# are uint64: numba then emits no wraparound test and LLVM vectorises. `out` is (3, N).
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _deform_pass(xa, xb, xc, inv, wu, wv):
-    """(w_u, w_v) per triangle from its vertex rows and R^-1 rows."""
-    a0, a1, a2 = xa
-    b0, b1, b2 = xb
-    c0, c1, c2 = xc
-    i00, i01, i10, i11 = inv
-    u0, u1, u2 = wu
-    v0, v1, v2 = wv
-    for i in range(a0.size):
-        u, v = _deformation((a0[i], a1[i], a2[i]), (b0[i], b1[i], b2[i]), (c0[i], c1[i], c2[i]),
-                            i00[i], i01[i], i10[i], i11[i])
-        u0[i], u1[i], u2[i] = u
-        v0[i], v1[i], v2[i] = v
+def _deform_pass(x, c0, c1, c2, params, t, s, m, row):
+    """scratch[row:row + 6] = (w_u, w_v) of the triangles of kind t at positions x."""
+    inv, sc = params.tri_inv, params.scratch
+    for i in range(m):
+        a = s + i
+        u, v = _deformation((x[0, c0 + i], x[1, c0 + i], x[2, c0 + i]),
+                            (x[0, c1 + i], x[1, c1 + i], x[2, c1 + i]),
+                            (x[0, c2 + i], x[1, c2 + i], x[2, c2 + i]),
+                            inv[t, 0, a], inv[t, 1, a], inv[t, 2, a], inv[t, 3, a])
+        sc[row, a], sc[row + 1, a], sc[row + 2, a] = u
+        sc[row + 3, a], sc[row + 4, a], sc[row + 5, a] = v
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _stress_pass(wu, wv, area, ks, kh, pu, pv):
-    """(dE/dw_u, dE/dw_v) per triangle."""
-    u0, u1, u2 = wu
-    v0, v1, v2 = wv
-    p0, p1, p2 = pu
-    q0, q1, q2 = pv
-    for i in range(u0.size):
-        gu, gv = _membrane_stress((u0[i], u1[i], u2[i]), (v0[i], v1[i], v2[i]), area[i] * ks,
-                                  area[i] * kh)
-        p0[i], p1[i], p2[i] = gu
-        q0[i], q1[i], q2[i] = gv
+def _stress_pass(params, t, s, m):
+    """(dE/dw_u, dE/dw_v) from (w_u, w_v)."""
+    sc, area = params.scratch, params.tri_area
+    ks, kh = params.k_stretch, params.k_shear
+    for i in range(m):
+        a = s + i
+        gu, gv = _membrane_stress((sc[WU, a], sc[WU + 1, a], sc[WU + 2, a]),
+                                  (sc[WV, a], sc[WV + 1, a], sc[WV + 2, a]),
+                                  area[t, a] * ks, area[t, a] * kh)
+        sc[PU, a], sc[PU + 1, a], sc[PU + 2, a] = gu
+        sc[PV, a], sc[PV + 1, a], sc[PV + 2, a] = gv
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _hessian_pass(wu, wv, dwu, dwv, area, ks, kh, filtered, pu, pv):
-    """Derivative of (dE/dw_u, dE/dw_v) along (dw_u, dw_v) per triangle."""
-    u0, u1, u2 = wu
-    v0, v1, v2 = wv
-    du0, du1, du2 = dwu
-    dv0, dv1, dv2 = dwv
-    p0, p1, p2 = pu
-    q0, q1, q2 = pv
-    for i in range(u0.size):
-        gu, gv = _membrane_hessian((u0[i], u1[i], u2[i]), (v0[i], v1[i], v2[i]),
-                                   (du0[i], du1[i], du2[i]), (dv0[i], dv1[i], dv2[i]),
-                                   area[i] * ks, area[i] * kh, filtered)
-        p0[i], p1[i], p2[i] = gu
-        q0[i], q1[i], q2[i] = gv
+def _hessian_pass(params, t, s, m, filtered):
+    """The derivative of (dE/dw_u, dE/dw_v) along (dw_u, dw_v), in place of the stress."""
+    sc, area = params.scratch, params.tri_area
+    ks, kh = params.k_stretch, params.k_shear
+    for i in range(m):
+        a = s + i
+        gu, gv = _membrane_hessian((sc[WU, a], sc[WU + 1, a], sc[WU + 2, a]),
+                                   (sc[WV, a], sc[WV + 1, a], sc[WV + 2, a]),
+                                   (sc[DWU, a], sc[DWU + 1, a], sc[DWU + 2, a]),
+                                   (sc[DWV, a], sc[DWV + 1, a], sc[DWV + 2, a]),
+                                   area[t, a] * ks, area[t, a] * kh, filtered)
+        sc[PU, a], sc[PU + 1, a], sc[PU + 2, a] = gu
+        sc[PV, a], sc[PV + 1, a], sc[PV + 2, a] = gv
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _spread_pass(pu, pv, inv, sa, sb, out):
-    """out = -(pu cu + pv cv) with cu = sa R^-1_00 + sb R^-1_10, cv = sa R^-1_01 + sb R^-1_11:
-    minus the gradient at one vertex ((sa, sb) = (-1, -1), (1, 0), (0, 1) for x0, x1, x2)."""
-    p0, p1, p2 = pu
-    q0, q1, q2 = pv
-    i00, i01, i10, i11 = inv
-    o0, o1, o2 = out
-    for i in range(p0.size):
-        cu = sa * i00[i] + sb * i10[i]
-        cv = sa * i01[i] + sb * i11[i]
-        o0[i] = -(p0[i] * cu + q0[i] * cv)
-        o1[i] = -(p1[i] * cu + q1[i] * cv)
-        o2[i] = -(p2[i] * cu + q2[i] * cv)
+def _spread_pass(params, t, s, m, sa, sb, out, c):
+    """out[:, c + i] -= pu cu + pv cv with (pu, pv) the stress rows, cu = sa R^-1_00 +
+    sb R^-1_10 and cv = sa R^-1_01 + sb R^-1_11: minus the gradient at one vertex
+    ((sa, sb) = (-1, -1), (1, 0), (0, 1) for x0, x1, x2)."""
+    sc, inv = params.scratch, params.tri_inv
+    for i in range(m):
+        a = s + i
+        cu = sa * inv[t, 0, a] + sb * inv[t, 2, a]
+        cv = sa * inv[t, 1, a] + sb * inv[t, 3, a]
+        out[0, c + i] -= sc[PU, a] * cu + sc[PV, a] * cv
+        out[1, c + i] -= sc[PU + 1, a] * cu + sc[PV + 1, a] * cv
+        out[2, c + i] -= sc[PU + 2, a] * cu + sc[PV + 2, a] * cv
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _membrane_diagonal_pass(wu, wv, area, ks, kh, inv, sa, sb, out):
-    """Diagonal of the filtered membrane Hessian block of one vertex (as _spread_pass):
-    cu^2 H_uu + 2 cu cv H_uv + cv^2 H_vv per axis, H_uv = kh a w_u w_v^T (Gauss-Newton)."""
-    u0, u1, u2 = wu
-    v0, v1, v2 = wv
-    i00, i01, i10, i11 = inv
-    o0, o1, o2 = out
-    for i in range(u0.size):
-        ka, kb = area[i] * ks, area[i] * kh
-        u, v = (u0[i], u1[i], u2[i]), (v0[i], v1[i], v2[i])
+def _membrane_diagonal_pass(params, t, s, m, sa, sb, out, c):
+    """out[:, c + i] += the diagonal of the filtered membrane Hessian block of one vertex (as
+    _spread_pass): cu^2 H_uu + 2 cu cv H_uv + cv^2 H_vv, H_uv = a k_shear w_v w_u^T."""
+    sc, inv, area = params.scratch, params.tri_inv, params.tri_area
+    ks, kh = params.k_stretch, params.k_shear
+    for i in range(m):
+        a = s + i
+        ka, kb = area[t, a] * ks, area[t, a] * kh
+        u = (sc[WU, a], sc[WU + 1, a], sc[WU + 2, a])
+        v = (sc[WV, a], sc[WV + 1, a], sc[WV + 2, a])
         huu, hvv = _membrane_diagonal(u, v, ka, kb), _membrane_diagonal(v, u, ka, kb)
-        cu = sa * i00[i] + sb * i10[i]
-        cv = sa * i01[i] + sb * i11[i]
-        o0[i] = cu * cu * huu[0] + 2.0 * cu * cv * kb * u[0] * v[0] + cv * cv * hvv[0]
-        o1[i] = cu * cu * huu[1] + 2.0 * cu * cv * kb * u[1] * v[1] + cv * cv * hvv[1]
-        o2[i] = cu * cu * huu[2] + 2.0 * cu * cv * kb * u[2] * v[2] + cv * cv * hvv[2]
+        cu = sa * inv[t, 0, a] + sb * inv[t, 2, a]
+        cv = sa * inv[t, 1, a] + sb * inv[t, 3, a]
+        out[0, c + i] += cu * cu * huu[0] + 2.0 * cu * cv * kb * u[0] * v[0] + cv * cv * hvv[0]
+        out[1, c + i] += cu * cu * huu[1] + 2.0 * cu * cv * kb * u[1] * v[1] + cv * cv * hvv[1]
+        out[2, c + i] += cu * cu * huu[2] + 2.0 * cu * cv * kb * u[2] * v[2] + cv * cv * hvv[2]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _normal_one_pass(xa, xb, xc, n1, t1, length):
-    a0, a1, a2 = xa
-    b0, b1, b2 = xb
-    c0, c1, c2 = xc
-    m0, m1, m2 = n1
-    for i in range(a0.size):
-        n, t, el = _normal_one((a0[i], a1[i], a2[i]), (b0[i], b1[i], b2[i]),
-                               (c0[i], c1[i], c2[i]))
-        m0[i], m1[i], m2[i] = n
-        t1[i] = t
-        length[i] = el
+def _normal_one_pass(x, ca, cb, cc, params, s, m):
+    """N1, t1, |e| and 1 / |e| of the hinges with vertices a, b, c at x."""
+    sc = params.scratch
+    for i in range(m):
+        a = s + i
+        n, t, length, il = _normal_one((x[0, ca + i], x[1, ca + i], x[2, ca + i]),
+                                       (x[0, cb + i], x[1, cb + i], x[2, cb + i]),
+                                       (x[0, cc + i], x[1, cc + i], x[2, cc + i]))
+        sc[N1, a], sc[N1 + 1, a], sc[N1 + 2, a] = n
+        sc[T1, a], sc[LENGTH, a], sc[INV_LENGTH, a] = t, length, il
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _normal_two_pass(xa, xb, xd, n1, n2, t2, theta):
-    a0, a1, a2 = xa
-    b0, b1, b2 = xb
-    d0, d1, d2 = xd
-    m0, m1, m2 = n1
-    k0, k1, k2 = n2
-    for i in range(a0.size):
-        n, t, th = _normal_two((a0[i], a1[i], a2[i]), (b0[i], b1[i], b2[i]),
-                               (d0[i], d1[i], d2[i]), (m0[i], m1[i], m2[i]))
-        k0[i], k1[i], k2[i] = n
-        t2[i] = t
-        theta[i] = th
+def _normal_two_pass(x, ca, cb, cd, params, s, m):
+    """N2, t2 and theta of the hinges with vertices a, b, d at x (after _normal_one_pass)."""
+    sc = params.scratch
+    for i in range(m):
+        a = s + i
+        n, t, theta = _normal_two((x[0, ca + i], x[1, ca + i], x[2, ca + i]),
+                                  (x[0, cb + i], x[1, cb + i], x[2, cb + i]),
+                                  (x[0, cd + i], x[1, cd + i], x[2, cd + i]),
+                                  (sc[N1, a], sc[N1 + 1, a], sc[N1 + 2, a]), sc[LENGTH, a],
+                                  sc[INV_LENGTH, a])
+        sc[N2, a], sc[N2 + 1, a], sc[N2 + 2, a] = n
+        sc[T2, a], sc[THETA, a] = t, theta
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _project_pass(n, length, t, ya, yb, yc, accumulate, out):
-    """out (+)= q . ((|e| - t) ya + t yb - |e| yc), q = N / |N|^2: the part of
-    d theta . y of one triangle of each hinge (yc: that triangle's opposite vertex)."""
-    n0, n1, n2 = n
-    a0, a1, a2 = ya
-    b0, b1, b2 = yb
-    c0, c1, c2 = yc
-    for i in range(n0.size):
-        nsq = n0[i] * n0[i] + n1[i] * n1[i] + n2[i] * n2[i]
+def _project_pass(y, ca, cb, cc, params, normal, t, s, m, accumulate):
+    """d theta (+)= q . ((|e| - t) ya + t yb - |e| yc), q = N / |N|^2 with N, t the rows
+    `normal`, `t` of one triangle of each hinge and yc its opposite vertex."""
+    sc = params.scratch
+    for i in range(m):
+        a = s + i
+        nsq = sc[normal, a] ** 2 + sc[normal + 1, a] ** 2 + sc[normal + 2, a] ** 2
         inv = 1.0 / nsq if nsq > 0.0 else 0.0
-        el, tt = length[i], t[i]
-        v = (n0[i] * ((el - tt) * a0[i] + tt * b0[i] - el * c0[i])
-             + n1[i] * ((el - tt) * a1[i] + tt * b1[i] - el * c1[i])
-             + n2[i] * ((el - tt) * a2[i] + tt * b2[i] - el * c2[i])) * inv
-        out[i] = out[i] + v if accumulate else v
+        el, tt = sc[LENGTH, a], sc[t, a]
+        v = (sc[normal, a] * ((el - tt) * y[0, ca + i] + tt * y[0, cb + i] - el * y[0, cc + i])
+             + sc[normal + 1, a] * ((el - tt) * y[1, ca + i] + tt * y[1, cb + i]
+                                    - el * y[1, cc + i])
+             + sc[normal + 2, a] * ((el - tt) * y[2, ca + i] + tt * y[2, cb + i]
+                                    - el * y[2, cc + i])) * inv
+        sc[DTHETA, a] = sc[DTHETA, a] + v if accumulate else v
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _scale_pass(n1, n2, factor, r, coefficient, s1, s2):
-    """S_k = coefficient factor r N_k / |N_k|^2 (0 for a zero normal)."""
-    m0, m1, m2 = n1
-    k0, k1, k2 = n2
-    a0, a1, a2 = s1
-    b0, b1, b2 = s2
-    for i in range(m0.size):
-        s = coefficient * factor[i] * r[i]
-        sq1 = m0[i] * m0[i] + m1[i] * m1[i] + m2[i] * m2[i]
-        sq2 = k0[i] * k0[i] + k1[i] * k1[i] + k2[i] * k2[i]
-        c1 = s / sq1 if sq1 > 0.0 else 0.0
-        c2 = s / sq2 if sq2 > 0.0 else 0.0
-        a0[i], a1[i], a2[i] = m0[i] * c1, m1[i] * c1, m2[i] * c1
-        b0[i], b1[i], b2[i] = k0[i] * c2, k1[i] * c2, k2[i] * c2
+def _scale_pass(params, k, r, coefficient, s, m):
+    """S_j = coefficient f r N_j / |N_j|^2 (j = 1, 2; r a scratch row; 0 for a zero normal)."""
+    sc, factor = params.scratch, params.edge_factor
+    for i in range(m):
+        a = s + i
+        sq1 = sc[N1, a] ** 2 + sc[N1 + 1, a] ** 2 + sc[N1 + 2, a] ** 2
+        sq2 = sc[N2, a] ** 2 + sc[N2 + 1, a] ** 2 + sc[N2 + 2, a] ** 2
+        product = sq1 * sq2
+        scale = coefficient * factor[k, a] * sc[r, a] / product if product > 0.0 else 0.0
+        c1, c2 = scale * sq2, scale * sq1
+        sc[S1, a], sc[S1 + 1, a], sc[S1 + 2, a] = c1 * sc[N1, a], c1 * sc[N1 + 1, a], c1 * sc[
+            N1 + 2, a]
+        sc[S2, a], sc[S2 + 1, a], sc[S2 + 2, a] = c2 * sc[N2, a], c2 * sc[N2 + 1, a], c2 * sc[
+            N2 + 2, a]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _hinge_vertex_pass(s1, s2, length, t1, t2, e1, f1, e2, f2, square, factor, coefficient,
-                       out):
-    """One vertex of the hinges: v = (e1 |e| + f1 t1) S1 + (e2 |e| + f2 t2) S2, the vertex's
-    d theta / dx times the scale ((e1, f1, e2, f2) = (1, -1, 1, -1), (0, 1, 0, 1), (-1, 0, 0, 0),
-    (0, 0, -1, 0) for a, b, c, d); out = v, or coefficient factor v^2 per axis if square."""
-    a0, a1, a2 = s1
-    b0, b1, b2 = s2
-    o0, o1, o2 = out
-    for i in range(a0.size):
-        c1 = e1 * length[i] + f1 * t1[i]
-        c2 = e2 * length[i] + f2 * t2[i]
-        v0 = c1 * a0[i] + c2 * b0[i]
-        v1 = c1 * a1[i] + c2 * b1[i]
-        v2 = c1 * a2[i] + c2 * b2[i]
+def _vertex_pass(params, k, s, m, gradient, square, out, c):
+    """out[:, c + i] += v = (e1 |e| + f1 t1) S1 + (e2 |e| + f2 t2) S2 ((e1, f1, e2, f2) =
+    `gradient`: one vertex's d theta / dx times the scale), or (2 k_bend / f) v^2 per axis if
+    square (the scale then is f, so this is 2 k_bend f (d theta / dx)^2; 0 without hinge)."""
+    sc, factor = params.scratch, params.edge_factor
+    e1, f1, e2, f2 = gradient
+    kb = 2.0 * params.k_bend
+    for i in range(m):
+        a = s + i
+        c1 = e1 * sc[LENGTH, a] + f1 * sc[T1, a]
+        c2 = e2 * sc[LENGTH, a] + f2 * sc[T2, a]
+        v0 = c1 * sc[S1, a] + c2 * sc[S2, a]
+        v1 = c1 * sc[S1 + 1, a] + c2 * sc[S2 + 1, a]
+        v2 = c1 * sc[S1 + 2, a] + c2 * sc[S2 + 2, a]
         if square:
-            k = coefficient * factor[i]
-            v0, v1, v2 = k * v0 * v0, k * v1 * v1, k * v2 * v2
-        o0[i], o1[i], o2[i] = v0, v1, v2
-
-
-# --- the exact bending Hessian product (scalar reference) --------------------------------------
+            w = kb / factor[k, a] if factor[k, a] > 0.0 else 0.0
+            v0, v1, v2 = w * v0 * v0, w * v1 * v1, w * v2 * v2
+        out[0, c + i] += v0
+        out[1, c + i] += v1
+        out[2, c + i] += v2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _exact_hinges(x, y, params, k, lo, hi):
-    """Slots of K y for the hinges of kind k anchored in [lo, hi): the exact bending Hessian
-    2 k_bend f (g g^T + theta d g / dx), g = d theta / dx."""
-    s0 = 6 + 4 * k
-    o = params.slot_offsets[s0:s0 + 4]
-    w, pad = params.work, params.pad
-    for p in range(max(lo, -o.min()), min(hi, x.shape[1] - o.max())):
-        v = [(x[0, p + o[m]], x[1, p + o[m]], x[2, p + o[m]]) for m in range(4)]
-        dv = [(y[0, p + o[m]], y[1, p + o[m]], y[2, p + o[m]]) for m in range(4)]
+def _exact_hinges(x, y, params, k, c, start, stop, out):
+    """out += K y of the hinges of kind k anchored in [start, stop) (vertex offsets c): the
+    exact bending Hessian 2 k_bend f (g g^T + theta dg/dx), g = d theta / dx. Scalar."""
+    for p in range(start, stop):
+        factor = params.edge_factor[k, p]
+        v = [(x[0, p + c[j]], x[1, p + c[j]], x[2, p + c[j]]) for j in range(4)]
+        dv = [(y[0, p + c[j]], y[1, p + c[j]], y[2, p + c[j]]) for j in range(4)]
         theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge(v[0], v[1], v[2], v[3])
         g = _hinge_gradient(length, _scale(n1, inv1), _scale(n2, inv2), t1, t2)
         h = _hinge_gradient_derivative(v[0], v[1], v[2], v[3], dv[0], dv[1], dv[2], dv[3],
                                        length, n1, n2, inv1, inv2, t1, t2)
-        stiff = 2.0 * params.k_bend * params.edge_factor[k, p] if ok else 0.0
+        stiff = 2.0 * params.k_bend * factor if ok else 0.0
         s = -stiff * (_dot(g[0], dv[0]) + _dot(g[1], dv[1]) + _dot(g[2], dv[2])
                       + _dot(g[3], dv[3]))
-        for m in range(4):
-            r = _comb(g[m], s, h[m], -stiff * theta)
+        for j in range(4):
+            r = _comb(g[j], s, h[j], -stiff * theta)
             for ax in range(3):
-                w[s0 + m, ax, pad + p] = r[ax]
+                out[ax, p + c[j]] += r[ax]
 
 
-# --- one chunk of anchors ---------------------------------------------------------------------
+# --- one element kind over a range of anchors --------------------------------------------------
 
 
 @njit(cache=True, nogil=True)
-def _triangle_chunk(x, y, params, t, mode, lo, hi):
-    """Slots of the triangles of kind t anchored in [lo, hi): minus the gradient of E
+def _triangles(x, y, params, t, mode, lo, hi, out):
+    """Add the triangles of kind t anchored in [lo, hi) to out: minus the gradient of E
     (FORCE), K y (PRODUCT), K_f y (FILTERED_PRODUCT) or the diagonal of -K_f (DIAGONAL)."""
-    off = params.slot_offsets[3 * t:3 * t + 3]
-    stop = min(hi, x.shape[1] - off.max())
+    o0, o1, o2 = (params.offsets[TRIANGLE_VERTICES[t, 0]], params.offsets[TRIANGLE_VERTICES[t, 1]],
+                  params.offsets[TRIANGLE_VERTICES[t, 2]])
+    stop = min(hi, x.shape[1] - max(o0, o1, o2))  # the offsets are >= 0
     if stop <= lo:
         return
-    sc, w, pad = params.scratch, params.work, params.pad
-    inv = (params.tri_inv[t, 0, lo:stop], params.tri_inv[t, 1, lo:stop],
-           params.tri_inv[t, 2, lo:stop], params.tri_inv[t, 3, lo:stop])
-    area = params.tri_area[t, lo:stop]
-    wu, wv = _rows(sc[WU:WU + 3], lo, stop), _rows(sc[WV:WV + 3], lo, stop)
-    pu, pv = _rows(sc[PU:PU + 3], lo, stop), _rows(sc[PV:PV + 3], lo, stop)
-    x0, x1, x2 = (_rows(x, lo + off[0], stop + off[0]), _rows(x, lo + off[1], stop + off[1]),
-                  _rows(x, lo + off[2], stop + off[2]))
-    out0, out1, out2 = (_rows(w[3 * t], pad + lo, pad + stop),
-                        _rows(w[3 * t + 1], pad + lo, pad + stop),
-                        _rows(w[3 * t + 2], pad + lo, pad + stop))
-    ks, kh = params.k_stretch, params.k_shear
-    _deform_pass(x0, x1, x2, inv, wu, wv)
+    s, m = np.uint64(lo), np.uint64(stop - lo)
+    c0, c1, c2 = np.uint64(lo + o0), np.uint64(lo + o1), np.uint64(lo + o2)
+    _deform_pass(x, c0, c1, c2, params, t, s, m, WU)
     if mode == DIAGONAL:
-        _membrane_diagonal_pass(wu, wv, area, ks, kh, inv, -1.0, -1.0, out0)
-        _membrane_diagonal_pass(wu, wv, area, ks, kh, inv, 1.0, 0.0, out1)
-        _membrane_diagonal_pass(wu, wv, area, ks, kh, inv, 0.0, 1.0, out2)
+        _membrane_diagonal_pass(params, t, s, m, -1.0, -1.0, out, c0)
+        _membrane_diagonal_pass(params, t, s, m, 1.0, 0.0, out, c1)
+        _membrane_diagonal_pass(params, t, s, m, 0.0, 1.0, out, c2)
         return
     if mode == FORCE:
-        _stress_pass(wu, wv, area, ks, kh, pu, pv)
+        _stress_pass(params, t, s, m)
     else:
-        dwu, dwv = _rows(sc[DWU:DWU + 3], lo, stop), _rows(sc[DWV:DWV + 3], lo, stop)
-        _deform_pass(_rows(y, lo + off[0], stop + off[0]), _rows(y, lo + off[1], stop + off[1]),
-                     _rows(y, lo + off[2], stop + off[2]), inv, dwu, dwv)
-        _hessian_pass(wu, wv, dwu, dwv, area, ks, kh, mode == FILTERED_PRODUCT, pu, pv)
-    _spread_pass(pu, pv, inv, -1.0, -1.0, out0)
-    _spread_pass(pu, pv, inv, 1.0, 0.0, out1)
-    _spread_pass(pu, pv, inv, 0.0, 1.0, out2)
+        _deform_pass(y, c0, c1, c2, params, t, s, m, DWU)
+        _hessian_pass(params, t, s, m, mode == FILTERED_PRODUCT)
+    _spread_pass(params, t, s, m, -1.0, -1.0, out, c0)
+    _spread_pass(params, t, s, m, 1.0, 0.0, out, c1)
+    _spread_pass(params, t, s, m, 0.0, 1.0, out, c2)
 
 
 @njit(cache=True, nogil=True)
-def _hinge_chunk(x, y, params, k, mode, lo, hi):
-    """Slots of the hinges of kind k anchored in [lo, hi), as _triangle_chunk."""
-    if mode == PRODUCT:
-        _exact_hinges(x, y, params, k, lo, hi)
-        return
-    s0 = 6 + 4 * k
-    off = params.slot_offsets[s0:s0 + 4]
-    start, stop = max(lo, -off.min()), min(hi, x.shape[1] - off.max())
+def _hinges(x, y, params, k, mode, lo, hi, out):
+    """Add the hinges of kind k anchored in [lo, hi) to out, as _triangles."""
+    o = (params.offsets[HINGE_VERTICES[k, 0]], params.offsets[HINGE_VERTICES[k, 1]],
+         params.offsets[HINGE_VERTICES[k, 2]], params.offsets[HINGE_VERTICES[k, 3]])
+    start = max(lo, -min(o[0], o[1], o[2], o[3]))
+    stop = min(hi, x.shape[1] - max(o[0], o[1], o[2], o[3]))
     if stop <= start:
         return
-    sc, w, pad = params.scratch, params.work, params.pad
-    n1, n2 = _rows(sc[N1:N1 + 3], start, stop), _rows(sc[N2:N2 + 3], start, stop)
-    s1, s2 = _rows(sc[S1:S1 + 3], start, stop), _rows(sc[S2:S2 + 3], start, stop)
-    t1, t2, length = sc[T1, start:stop], sc[T2, start:stop], sc[LENGTH, start:stop]
-    theta, dtheta = sc[THETA, start:stop], sc[DTHETA, start:stop]
-    factor = params.edge_factor[k, start:stop]
-    xa, xb = _rows(x, start + off[0], stop + off[0]), _rows(x, start + off[1], stop + off[1])
-    xc, xd = _rows(x, start + off[2], stop + off[2]), _rows(x, start + off[3], stop + off[3])
-    _normal_one_pass(xa, xb, xc, n1, t1, length)
-    _normal_two_pass(xa, xb, xd, n1, n2, t2, theta)
+    if mode == PRODUCT:
+        _exact_hinges(x, y, params, k, o, start, stop, out)
+        return
+    s, m = np.uint64(start), np.uint64(stop - start)
+    c = (np.uint64(start + o[0]), np.uint64(start + o[1]), np.uint64(start + o[2]),
+         np.uint64(start + o[3]))
+    _normal_one_pass(x, c[0], c[1], c[2], params, s, m)
+    _normal_two_pass(x, c[0], c[1], c[3], params, s, m)
     kb = params.k_bend
     if mode == FORCE:
-        _scale_pass(n1, n2, factor, theta, -2.0 * kb, s1, s2)  # -dE/dtheta q
-    elif mode == FILTERED_PRODUCT:
-        ya, yb = _rows(y, start + off[0], stop + off[0]), _rows(y, start + off[1], stop + off[1])
-        yc, yd = _rows(y, start + off[2], stop + off[2]), _rows(y, start + off[3], stop + off[3])
-        _project_pass(n1, length, t1, ya, yb, yc, False, dtheta)
-        _project_pass(n2, length, t2, ya, yb, yd, True, dtheta)
-        _scale_pass(n1, n2, factor, dtheta, -2.0 * kb, s1, s2)
-    else:  # DIAGONAL: S_k = q_k, squared per vertex below
-        for i in range(dtheta.size):
-            dtheta[i] = 1.0
-        _scale_pass(n1, n2, dtheta, dtheta, 1.0, s1, s2)
-    square = mode == DIAGONAL
-    for m, (e1, f1, e2, f2) in enumerate(((1.0, -1.0, 1.0, -1.0), (0.0, 1.0, 0.0, 1.0),
-                                           (-1.0, 0.0, 0.0, 0.0), (0.0, 0.0, -1.0, 0.0))):
-        _hinge_vertex_pass(s1, s2, length, t1, t2, e1, f1, e2, f2, square, factor, 2.0 * kb,
-                           _rows(w[s0 + m], pad + start, pad + stop))
+        _scale_pass(params, k, THETA, -2.0 * kb, s, m)  # S_j = -dE/dtheta q_j
+    elif mode == FILTERED_PRODUCT:  # S_j = -2 k_bend f (d theta . y) q_j
+        _project_pass(y, c[0], c[1], c[2], params, N1, T1, s, m, False)
+        _project_pass(y, c[0], c[1], c[3], params, N2, T2, s, m, True)
+        _scale_pass(params, k, DTHETA, -2.0 * kb, s, m)
+    else:  # DIAGONAL: S_j = f q_j, squared per vertex (and divided by f)
+        params.scratch[DTHETA, start:stop] = 1.0
+        _scale_pass(params, k, DTHETA, 1.0, s, m)
+    for j in range(4):
+        _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
+
+
+@njit(cache=True, nogil=True)
+def _band(x, y, params, mode, band, bands, out):
+    """Add the elements anchored in cell rows [band * rows // bands, (band + 1) * rows //
+    bands) to out (rows = nh - 1)."""
+    rows, nw = params.nh - 1, params.nw
+    lo, hi = (band * rows // bands) * nw, ((band + 1) * rows // bands) * nw
+    for t in range(TRIANGLE_KINDS):
+        _triangles(x, y, params, t, mode, lo, hi, out)
+    if params.k_bend != 0.0:
+        for k in range(HINGE_KINDS):
+            _hinges(x, y, params, k, mode, lo, hi, out)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _element_pass(x, y, params, mode):
-    """Fill params.work for every element (hinges only if k_bend != 0)."""
-    n = x.shape[1]
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n)
-        for t in range(TRIANGLE_KINDS):
-            _triangle_chunk(x, y, params, t, mode, lo, hi)
-        if params.k_bend != 0.0:
-            for k in range(EDGE_KINDS):
-                _hinge_chunk(x, y, params, k, mode, lo, hi)
-
-
-@njit(cache=True, nogil=True, parallel=True)
-def _gather_pass(params, out, accumulate):
-    """out[:, p] (+)= the slots of point p, in slot order (a fixed order: deterministic)."""
-    n = out.shape[1]
-    slots = SLOTS if params.k_bend != 0.0 else 3 * TRIANGLE_KINDS
-    w, pad, off = params.work, params.pad, params.slot_offsets
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n)
-        m = hi - lo
-        for ax in range(3):
-            o = out[ax, lo:hi]
-            if not accumulate:
-                for i in range(m):
-                    o[i] = 0.0
-            for s in range(slots):
-                src = w[s, ax, pad + lo - off[s]:pad + hi - off[s]]
-                for i in range(m):
-                    o[i] += src[i]
+def _element_pass(x, y, params, mode, out):
+    """Add every element to out: the even bands in parallel, then the odd ones (a band has
+    at least two cell rows, so bands running together touch disjoint points). One parallel
+    function for every mode: each costs seconds to compile."""
+    bands = 2 * max(1, min(MAX_BANDS // 2, (params.nh - 1) // 4))
+    for b in prange(bands // 2):
+        _band(x, y, params, mode, 2 * b, bands, out)
+    for b in prange(bands // 2):
+        _band(x, y, params, mode, 2 * b + 1, bands, out)
 
 
 # --- public kernels -------------------------------------------------------------------------
@@ -638,13 +597,13 @@ def fem_energy(x: np.ndarray, params: FemParams) -> float:
     n = x.shape[1]
     energy = 0.0
     for t in range(TRIANGLE_KINDS):
-        o = params.slot_offsets[3 * t:3 * t + 3]
-        for p in range(n - o.max()):
+        o = params.offsets[TRIANGLE_VERTICES[t]]
+        for p in range(n):
             area = params.tri_area[t, p]
-            if area == 0.0:
+            if area == 0.0:  # no triangle here
                 continue
             inv = params.tri_inv[t, :, p]
-            v = [(x[0, p + o[m]], x[1, p + o[m]], x[2, p + o[m]]) for m in range(3)]
+            v = [(x[0, p + o[j]], x[1, p + o[j]], x[2, p + o[j]]) for j in range(3)]
             wu, wv = _deformation(v[0], v[1], v[2], inv[0], inv[1], inv[2], inv[3])
             lu, lv = math.sqrt(_dot(wu, wu)), math.sqrt(_dot(wv, wv))
             s = _dot(wu, wv)
@@ -652,13 +611,13 @@ def fem_energy(x: np.ndarray, params: FemParams) -> float:
                                     + params.k_shear * s * s)
     if params.k_bend == 0.0:
         return energy
-    for k in range(EDGE_KINDS):
-        o = params.slot_offsets[6 + 4 * k:10 + 4 * k]
-        for p in range(max(0, -o.min()), n - o.max()):
+    for k in range(HINGE_KINDS):
+        o = params.offsets[HINGE_VERTICES[k]]
+        for p in range(n):
             factor = params.edge_factor[k, p]
-            if factor == 0.0:
+            if factor == 0.0:  # no interior edge here
                 continue
-            v = [(x[0, p + o[m]], x[1, p + o[m]], x[2, p + o[m]]) for m in range(4)]
+            v = [(x[0, p + o[j]], x[1, p + o[j]], x[2, p + o[j]]) for j in range(4)]
             theta, ok = _hinge(v[0], v[1], v[2], v[3])[:2]
             if ok:
                 energy += params.k_bend * factor * theta * theta
@@ -668,8 +627,7 @@ def fem_energy(x: np.ndarray, params: FemParams) -> float:
 @njit(cache=True, nogil=True)
 def add_fem_forces(x: np.ndarray, params: FemParams, f: np.ndarray) -> None:
     """f += -dE/dx at positions x (3, N): the exact elastic forces."""
-    _element_pass(x, x, params, FORCE)
-    _gather_pass(params, f, True)
+    _element_pass(x, x, params, np.int64(FORCE), f)  # a run-time mode: one compiled pass
 
 
 @njit(cache=True, nogil=True)
@@ -677,8 +635,8 @@ def fem_jacobian_product(x: np.ndarray, params: FemParams, y: np.ndarray,
                          out: np.ndarray) -> None:
     """out = K y, K = d f / d x = -(Hessian of E) at x (3N x 3N, symmetric; exact, so it may
     be indefinite away from rest), matrix-free."""
-    _element_pass(x, y, params, PRODUCT)
-    _gather_pass(params, out, False)
+    out[:] = 0.0
+    _element_pass(x, y, params, np.int64(PRODUCT), out)
 
 
 @njit(cache=True, nogil=True)
@@ -688,16 +646,16 @@ def fem_filtered_jacobian_product(x: np.ndarray, params: FemParams, y: np.ndarra
     (M - h^2 K_f stays SPD): compressed stretch drops its transverse term (as
     forces.spring_jacobian), shear and bending keep their Gauss-Newton part (dC dC^T of
     C = w_u . w_v and C = theta). Equal to K at the rest state."""
-    _element_pass(x, y, params, FILTERED_PRODUCT)
-    _gather_pass(params, out, False)
+    out[:] = 0.0
+    _element_pass(x, y, params, np.int64(FILTERED_PRODUCT), out)
 
 
 @njit(cache=True, nogil=True)
 def fem_jacobian_diagonal(x: np.ndarray, params: FemParams, out: np.ndarray) -> None:
     """out[a, p] = -(K_f)_{pa, pa} >= 0: the diagonal of the filtered -K per (axis, point),
     for a Jacobi preconditioner."""
-    _element_pass(x, x, params, DIAGONAL)
-    _gather_pass(params, out, False)
+    out[:] = 0.0
+    _element_pass(x, x, params, np.int64(DIAGONAL), out)
 
 
 def estimate_omega_max(params: FemParams, masses: np.ndarray, iterations: int = 50) -> float:

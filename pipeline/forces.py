@@ -1,6 +1,8 @@
 """Forces of the classic model: gravity on every point plus Hooke's law along every enabled
 spring (SPEC section 2, step 1), plus the scene's other forces (wind), shared by every
-integrator through `total_force`.
+integrator through `total_force`. With the FEM model (System.fem not None) the springs'
+forces and Jacobians give way to pipeline.fem's (`internal_forces` and the `jacobian_*`
+functions choose; numba compiles only the branch of the System's model).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
 adds to f and does nothing when its params say it is off, packed into the System by
@@ -19,6 +21,8 @@ import numpy as np
 from numba import njit, prange
 
 from .model import DIRECTION_DI, DIRECTION_DJ
+from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
+                  fem_jacobian_diagonal)
 from .wind import add_wind_force
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
@@ -118,19 +122,35 @@ def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spr
 @njit(cache=True, nogil=True)
 def total_force(x, v, t, s, f):
     """f[:] = every force on the points at positions x, velocities v (3, N), time t, for the
-    System `s`: gravity and springs (in the course code's order of summation), then wind."""
-    spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-                  s.gravity, s.spring_force, f)
+    System `s`: gravity and the cloth's internal forces (classic: in the course code's order
+    of summation), then wind."""
+    internal_forces(x, s, s.fem, f)
     add_other_forces(x, v, t, s, f)
+
+
+@njit(cache=True, nogil=True)
+def internal_forces(x, s, fem, f):
+    """f[:] = gravity + the elastic forces of the System's model (fem = s.fem)."""
+    if fem is None:
+        spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
+                      s.gravity, s.spring_force, f)
+    else:
+        _gravity(s, f)
+        add_fem_forces(x, fem, f)
+
+
+@njit(cache=True, nogil=True)
+def _gravity(s, f):
+    for a in range(3):
+        for p in range(f.shape[1]):
+            f[a, p] = s.mass[p] * s.gravity[a]
 
 
 @njit(cache=True, nogil=True)
 def external_force(x, v, t, s, f):
     """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
     treats the springs as constraints)."""
-    for a in range(3):
-        for p in range(x.shape[1]):
-            f[a, p] = s.mass[p] * s.gravity[a]
+    _gravity(s, f)
     add_other_forces(x, v, t, s, f)
 
 
@@ -142,6 +162,14 @@ def add_other_forces(x, v, t, s, f):
 
 
 # --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------
+
+
+def elastic_energy(x: np.ndarray, s) -> float:
+    """Elastic potential energy (J) of the System `s`'s model at positions x (3, N)."""
+    if s.fem is not None:
+        return fem_energy(x, s.fem)
+    return spring_energy(x, s.offsets, s.exists, s.rest, s.stiffness)
+
 
 
 @njit(cache=True, nogil=True)
@@ -255,3 +283,34 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
                 diag = k * u * u + a * (1.0 - u * u)
                 out[ax, p] += diag
                 out[ax, q] += diag
+
+
+# --- the elastic force Jacobian of either model, for implicit Euler ------------------------
+
+
+@njit(cache=True, nogil=True)
+def prepare_jacobian(x, s, fem, unit, alpha):
+    """Linearise the elastic forces at x: the classic springs store their per-spring data in
+    (unit, alpha) (see spring_jacobian); the FEM needs nothing beyond x."""
+    if fem is None:
+        spring_jacobian(x, s.offsets, s.exists, s.rest, s.stiffness, unit, alpha)
+
+
+@njit(cache=True, nogil=True)
+def jacobian_product(x, y, s, fem, unit, alpha, buffer, out):
+    """out = K y, K the elastic force Jacobian at x (negative semi-definite: compressed
+    springs, or the FEM's filtered Hessian)."""
+    if fem is None:
+        spring_jacobian_product(y, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer,
+                                out)
+    else:
+        fem_filtered_jacobian_product(x, fem, y, out)
+
+
+@njit(cache=True, nogil=True)
+def jacobian_diagonal(x, s, fem, unit, alpha, out):
+    """out = the diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner."""
+    if fem is None:
+        spring_jacobian_diagonal(s.offsets, s.stiffness, unit, alpha, out)
+    else:
+        fem_jacobian_diagonal(x, fem, out)

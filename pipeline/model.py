@@ -1,4 +1,7 @@
-"""The classic mass-spring cloth model (SPEC section 2) as flat arrays: data only.
+"""The cloth model as flat arrays: data only. The classic mass-spring model (SPEC section 2)
+always supplies the grid, pins and springs (the renderer's wireframe and Provot's limit use
+them); with `simulation.model` "fem" the model also carries the finite-element data
+(pipeline.fem.FemParams), which then replaces the springs' forces and sets the masses.
 
 Points are row-major (row i < nh, column j < nw, index p = i * nw + j). Every point creates
 up to six springs towards earlier neighbours, in this order (the *directions*):
@@ -17,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .fem import FemParams, build_fem, lumped_masses
 from .scene import Cloth, Scene
 
 DIRECTION_NAMES = ("left", "above", "upper-left", "upper-right", "two-left", "two-above")
@@ -41,8 +45,8 @@ class ClothModel:
     width: float
     height: float
     thickness: float
-    mass: float  # of every point of a uniform cloth: width * height * density / N
-    point_mass: np.ndarray  # (N,) float64, mass * the mass map's multiplier
+    mass: float  # of every point of a uniform classic cloth: width * height * density / N
+    point_mass: np.ndarray  # (N,) float64: mass (FEM: lumped masses) * mass map multiplier
     damping: float  # the Verlet factor: fraction of velocity lost per step (percent / 100)
     x0: np.ndarray  # (3, N) float64, initial positions
     pinned: np.ndarray  # (N,) uint8, 1 = pinned
@@ -50,6 +54,7 @@ class ClothModel:
     rest: np.ndarray  # (6, N) float64 rest length (0 where the spring does not exist)
     stiffness: np.ndarray  # (6,) float64 k per direction; 0 where its type is disabled
     spring_enabled_by_type: tuple[bool, bool, bool]
+    fem: FemParams | None = None  # the finite-element model's data; None: classic springs
 
     @property
     def n(self) -> int:
@@ -134,7 +139,14 @@ def build_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
         [k_type[t] if enabled[t] else 0.0 for t in DIRECTION_TYPE], dtype=np.float64
     )
     mass = ((c.width * c.height) * c.density) / float(n)
-    point_mass = np.full(n, mass) if c.mass_map is None else mass * mass_multipliers(c)
+    fem = None
+    if scene.simulation.model == "fem":
+        m = c.fem
+        fem = build_fem(nw, nh, c.width, c.height, m.stretch, m.shear, m.bending, m.density)
+        base = lumped_masses(fem)
+    else:
+        base = np.full(n, mass)
+    point_mass = base if c.mass_map is None else base * mass_multipliers(c)
     return ClothModel(
         nw=nw,
         nh=nh,
@@ -150,6 +162,7 @@ def build_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
         rest=rest,
         stiffness=stiffness,
         spring_enabled_by_type=enabled,
+        fem=fem,
     )
 
 

@@ -28,7 +28,7 @@ from typing import Any
 
 __all__ = [
     "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane", "Box",
-    "MeshCollider", "Keyframe", "Collider", "Wind", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
+    "MeshCollider", "Keyframe", "Collider", "Wind", "FemMaterial", "MODELS", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
     "Scene", "load_scene", "apply_overrides", "scene_schema",
 ]
 
@@ -36,6 +36,9 @@ __all__ = [
 #: The schema's enum is built from this tuple at load time: adding one is one edit here.
 INTEGRATORS: tuple[str, ...] = (
     "verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
+
+#: Cloth models for `simulation.model` (the first is the default).
+MODELS: tuple[str, ...] = ("classic", "fem")
 
 #: Known shader names for `render.shader` (schema enum built from this tuple).
 SHADERS: tuple[str, ...] = (
@@ -52,6 +55,17 @@ Vec3 = tuple[float, float, float]
 
 class SceneError(ValueError):
     """Bad scene input. `str(err)` is the one-line message shown to the user."""
+
+
+@dataclass(frozen=True)
+class FemMaterial:
+    """The `cloth.fem` block (docs/fem.md): the finite-element model's material, physical
+    units; the defaults are a cotton broadcloth."""
+
+    stretch: float = 300.0  # N/m
+    shear: float = 30.0  # N/m
+    bending: float = 1e-5  # N m
+    density: float = 0.15  # kg/m^2
 
 
 @dataclass(frozen=True)
@@ -75,6 +89,7 @@ class Cloth:
     # rows of floats, an absolute image path, or None (uniform).
     mass_map: tuple[tuple[float, ...], ...] | Path | None = None
     mass_map_range: tuple[float, float] = (1.0, 2.0)  # image: black, white multipliers
+    fem: FemMaterial = FemMaterial()  # used when simulation.model is "fem"
 
 
 @dataclass(frozen=True)
@@ -171,6 +186,7 @@ class SimulationSettings:
     frames_per_sec: float = 90.0
     steps_per_frame: int = 30
     gravity: Vec3 = (0.0, -9.8, 0.0)
+    model: str = "classic"
     integrator: str = "verlet"
     seed: int = 0
     self_collision: bool | str = "auto"  # True, False or "auto" (on for vertical cloth)
@@ -312,6 +328,7 @@ def _schema_and_validator(integrators: tuple[str, ...], shaders: tuple[str, ...]
     schema = json.loads(text)
     defs = schema["$defs"]
     defs["simulation"]["properties"]["integrator"]["enum"] = list(integrators)
+    defs["simulation"]["properties"]["model"]["enum"] = list(MODELS)
     defs["render"]["properties"]["shader"]["enum"] = list(shaders)
     jsonschema.Draft202012Validator.check_schema(schema)
     return schema, jsonschema.Draft202012Validator(schema)
@@ -727,6 +744,7 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         pinned=tuple((int(x), int(y)) for x, y in c.get("pinned", ())),
         mass_map=_mass_map(c.get("mass_map"), base_dir),
         mass_map_range=tuple(float(v) for v in c.get("mass_map_range", Cloth.mass_map_range)),
+        fem=FemMaterial(**{k: float(v) for k, v in c.get("fem", {}).items()}),
     )
     colliders = [_collider(path[0], obj, base_dir) for path, obj in _collider_items(data)]
     wind = None
@@ -742,6 +760,7 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         frames_per_sec=float(s.get("frames_per_sec", d.frames_per_sec)),
         steps_per_frame=int(s.get("steps_per_frame", d.steps_per_frame)),
         gravity=_vec3(s.get("gravity", d.gravity)),
+        model=str(s.get("model", d.model)),
         integrator=str(s.get("integrator", d.integrator)),
         seed=int(s.get("seed", d.seed)),
         self_collision=s.get("self_collision", d.self_collision),

@@ -105,11 +105,15 @@ class Simulation:
     def stability_message(self) -> str:
         spf = self.system.steps_per_frame
         needed = math.ceil(spf * self.system.dt / self.dt_max)
+        c = self.scene.cloth
+        stiff, key = ((f"cloth.fem.stretch = {c.fem.stretch:g} N/m", "cloth.fem.stretch")
+                      if self.model.fem is not None else (f"ks = {c.ks:g}", "cloth.ks"))
         return (
             f"time step {self.system.dt:.3g} s exceeds the explicit stability limit "
             f"{self.dt_max:.3g} s of this cloth (omega_max = {self.omega_max:.4g} rad/s from "
-            f"ks = {self.scene.cloth.ks:g} and point mass {self.model.point_mass.min():.3g} kg): expect a "
-            f"blow-up; use simulation.steps_per_frame >= {needed} or a smaller cloth.ks"
+            f"{stiff} and point mass {self.model.point_mass.min():.3g} kg): expect a "
+            f"blow-up; use simulation.steps_per_frame >= {needed}, a smaller {key} or "
+            f'simulation.integrator "implicit-euler"'
         )
 
     def _divergence_message(self, kinetic: float, bound: float) -> str:
@@ -122,7 +126,8 @@ class Simulation:
             what = (f"kinetic energy {kinetic:.4g} J exceeds {bound:.4g} J, more than gravity "
                     f"can have supplied (max point speed {speed:.3g} m/s)")
         advice = (self.stability_message() if self.step_limited and self.system.dt > self.dt_max else
-                  "use a larger simulation.steps_per_frame or a smaller cloth.ks")
+                  "use a larger simulation.steps_per_frame or a smaller "
+                  + ("cloth.fem.stretch" if self.model.fem is not None else "cloth.ks"))
         return (f"simulation diverged at frame {frame + 1}, step {step_in_frame + 1} of "
                 f"{spf} (t = {self.time:.4f} s): {what}; {advice}")
 

@@ -14,6 +14,7 @@ from numba import njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
+from .fem import FemParams, estimate_omega_max
 from .forces import direction_offsets, gather_order, spring_force_buffer
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .scene import Scene
@@ -44,7 +45,8 @@ class System(NamedTuple):
     damping: float  # fraction of velocity lost per step
     steps_per_frame: int
     colliders: ColliderTable
-    wind: WindParams
+    wind: WindParams | None  # None: no wind (pruned from the kernels)
+    fem: FemParams | None  # the finite-element model; None: the classic springs
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool
     scratch: tuple  # SelfCollisionScratch.as_tuple()
@@ -84,6 +86,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         steps_per_frame=int(sim.steps_per_frame),
         colliders=pack_colliders(scene.colliders),
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),
+        fem=model.fem,
         needs_velocity=scene.wind is not None,
         self_collision=scene.self_collision,
         scratch=SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple(),
@@ -150,8 +153,11 @@ def energy_guard(mv_sq_sum, mass_drop, system):
 
 
 def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float]:
-    """(omega_max, dt_max): highest angular frequency of the spring lattice and the largest
-    stable step of the damped Verlet update for it.
+    """(omega_max, dt_max): highest angular frequency of the cloth and the largest stable
+    step of the damped Verlet update for it.
+
+    FEM model: omega_max from fem.estimate_omega_max (power iteration on the flat rest
+    sheet, mass map included). Classic model:
 
     omega_max**2 is the largest eigenvalue of M^-1 K for the infinite lattice with the
     cloth's spacing (a finite cloth's eigenvalues lie below it): for a plane wave with phase
@@ -164,6 +170,10 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     lambda_max(K) / m_min, so the limit stays on the safe side (tight when the light points
     fill a region larger than a wavelength, as a uniform cloth with a heavier hem does).
     """
+    keep = math.sqrt(2.0 * (2.0 - model.damping))
+    if model.fem is not None:
+        omega_max = estimate_omega_max(model.fem, model.point_mass)
+        return omega_max, (keep / omega_max if omega_max > 0.0 else math.inf)
     light = float(model.point_mass.min())  # the lightest point bounds the frequencies
     sx = model.width / (model.nw - 1)
     sy = model.height / (model.nh - 1)
@@ -183,7 +193,7 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     omega_max = math.sqrt(max(float(np.linalg.eigvalsh(dyn).max()), 0.0))
     if omega_max == 0.0:
         return 0.0, math.inf
-    return omega_max, math.sqrt(2.0 * (2.0 - model.damping)) / omega_max
+    return omega_max, keep / omega_max
 
 
 # --- passes and guard shared by every integrator --------------------------------------------
@@ -204,13 +214,20 @@ def position_passes(x, last, system, t_start):
     """Steps 3-5 of the classic order on the free points of x (3, N), after an integrator's
     update from the start-of-step positions `last` (at time t_start) over one step:
     self-collision (when enabled), the colliders in scene order (friction measured from
-    `last`), then Provot's stretch limit."""
+    `last`), then Provot's stretch limit (classic model only: the FEM's own stretch
+    stiffness bounds its strain)."""
     s = system
     if s.self_collision:
         self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
                      s.steps_per_frame, s.scratch)
     collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+    _classic_stretch_limit(x, s, s.fem)
+
+
+@njit(cache=True, nogil=True)
+def _classic_stretch_limit(x, s, fem):
+    if fem is None:  # numba prunes the call for the FEM model
+        limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
 
 
 @njit(cache=True, nogil=True)

@@ -43,7 +43,6 @@ class WindParams(NamedTuple):
     """The wind packed for the kernels. `phase`, `point` and `tri` are scratch (one
     WindParams per simulation); the band count is point.shape[0]."""
 
-    enabled: bool
     gusty: bool
     nw: int
     nh: int
@@ -57,13 +56,12 @@ class WindParams(NamedTuple):
     tri: np.ndarray  # (bands, 2, 3, (rows + 2) nw + 1) float32: per-vertex triangle forces
 
 
-def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams:
-    """The scene's `Wind` (None: disabled) for an nw x nh cloth, gusts seeded by `seed`.
+def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams | None:
+    """The scene's `Wind` for an nw x nh cloth, gusts seeded by `seed`; None without wind
+    (the kernels are then compiled without the wind code at all).
     `bands`: work items of the parallel loop (0: one per thread, MIN_BAND_ROWS rows at least)."""
     if wind is None:
-        return WindParams(False, False, nw, nh, np.zeros(3), 0.0, 0.0,
-                          np.zeros((8, GUST_MODES)), np.zeros(GUST_MODES, np.float32),
-                          np.zeros((1, 6, 0), np.float32), np.zeros((1, 2, 3, 0), np.float32))
+        return None
     bands = bands or max(1, min(numba.config.NUMBA_NUM_THREADS, nh // MIN_BAND_ROWS))
     rows = -(-nh // bands)
     velocity = np.array(wind.velocity, dtype=np.float64)
@@ -76,7 +74,7 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams:
     modes = np.vstack([wavevector.T, amplitude.T, phase0, frequency - wavevector @ velocity])
     rho = wind.air_density
     return WindParams(
-        True, wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
+        wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
         rho * wind.lift / 108.0, modes, np.zeros(GUST_MODES, np.float32),
         np.zeros((bands, 6, (rows + 2) * nw), np.float32),
         np.zeros((bands, 2, 3, (rows + 2) * nw + 1), np.float32))
@@ -246,8 +244,9 @@ def _all_bands(x, v, w, f):
 
 @njit(cache=True, nogil=True)
 def add_wind_force(x, v, t, w, f):
-    """f += the aerodynamic force at positions x, velocities v (3, N), time t (s)."""
-    if not w.enabled:
+    """f += the aerodynamic force at positions x, velocities v (3, N), time t (s); nothing
+    when w is None (numba prunes the branch: no wind code is compiled for such a call)."""
+    if w is None:
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
     if w.point.shape[0] == 1:

@@ -230,11 +230,16 @@ def test_bench_writes_charts_and_csv(tmp_path):
     out = tmp_path / "bench"
     assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
                  "--stability-grid", "6", "--time", "0.1", "--sweep", "8,30",
-                 "--ks", "1e4"]) == 0
+                 "--ks", "1e4", "--stretch", "300"]) == 0
     for stem in ("pinned2_work_precision", "pinned2_stability"):
         for ext in ("png", "svg", "csv"):
             assert (out / f"{stem}.{ext}").stat().st_size > 0
+    # both models by default (tests/test_bench.py covers the FEM path), every integrator
+    fem = len(INTEGRATORS)
     rows = (out / "pinned2_work_precision.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * len(INTEGRATORS)
+    assert len(rows) == 1 + 2 * len(INTEGRATORS) + 2 * fem
+    assert rows[0].startswith("model,integrator,")
+    assert sum(r.startswith("classic,xpbd,") for r in rows) == 2
+    assert sum(r.startswith("fem,") for r in rows) == 2 * fem
     stab = (out / "pinned2_stability.csv").read_text().splitlines()
-    assert len(stab) == 1 + len(INTEGRATORS)
+    assert len(stab) == 1 + len(INTEGRATORS) + fem

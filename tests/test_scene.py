@@ -250,6 +250,10 @@ BAD_TABLE = [
     ("mass_map_zero.json", "cloth.mass_map[0][1]: expected a number > 0, got 0"),
     ("mass_map_image_missing.json", "cloth.mass_map: image '"),
     ("mass_map_not_an_image.json", "cloth.mass_map: cannot read '"),
+    ("model_unknown.json",
+     'simulation.model: expected one of "classic", "fem", got "finite-element"'),
+    ("fem_stretch_zero.json", "cloth.fem.stretch: expected a number > 0, got 0"),
+    ("fem_typo.json", "unknown key 'bend' in cloth.fem (did you mean 'bending'?"),
 ]
 
 

@@ -126,7 +126,7 @@ def _step_again(grid, data, x, y, z, level):
     return qx, qy, qz, step2
 
 
-@njit(cache=True, nogil=True, inline="always")
+@njit(cache=True, nogil=True)
 def project(params, c, data, x, y, z, lx, ly, lz):
     """The point now at (x, y, z), at (lx, ly, lz) at the start of the step, corrected by
     mesh collider c (rest frame). Written with few branches, no loop and no merge after a

@@ -1,14 +1,15 @@
 """Backward Euler linearised once per step (Baraff and Witkin 1998, "Large steps in cloth
 simulation", section 4), matrix-free, with a filtered preconditioned conjugate gradient.
 
-With f(x, v) = m g + spring forces(x) + other forces(x, v, t) - gamma m v (gamma =
-system.drag_rate), K = d(spring forces)/dx at the start of the step (spring Jacobians, see
-forces.spring_jacobian; the other forces, wind, enter explicitly) and df/dv = -gamma M:
+With f(x, v) = m g + elastic forces(x) + other forces(x, v, t) - gamma m v (gamma =
+system.drag_rate), K = d(elastic forces)/dx at the start of the step (forces.jacobian_product:
+the spring Jacobians of forces.spring_jacobian, or the FEM's filtered Hessian; the other
+forces, wind, enter explicitly) and df/dv = -gamma M:
 
     ((1 + dt gamma) M - dt^2 K) dv = dt (f(x, v) + dt K v),   v' = v + dv,   x' = x + dt v'.
 
 The system matrix is symmetric positive definite (compressed springs drop their transverse
-term); it is solved by conjugate gradients with a Jacobi preconditioner, never assembled.
+term; the FEM keeps the semi-definite part of its Hessian); it is solved by conjugate gradients with a Jacobi preconditioner, never assembled.
 Pinned points are handled as in the paper's modified PCG (section 5.3): the filter S zeroes
 their components of the residual and the search directions, so they keep v = 0.
 The solve stops at a relative residual of CG_TOLERANCE (or CG_MAX_ITERATIONS).
@@ -20,8 +21,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from ..forces import (CHUNKS, _chunk, spring_force_buffer, spring_jacobian,
-                      spring_jacobian_diagonal, spring_jacobian_product, total_force)
+from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
+                      spring_force_buffer, total_force)
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -58,10 +59,10 @@ def _dot(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _apply(y, out, s, unit, alpha, buffer, mass_factor, h2):
-    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points); mass_factor is
+def _apply(x, y, out, s, unit, alpha, buffer, mass_factor, h2):
+    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x); mass_factor is
     1 + h gamma."""
-    spring_jacobian_product(y, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, out)
+    jacobian_product(x, y, s, s.fem, unit, alpha, buffer, out)
     for ax in range(3):
         for p in range(y.shape[1]):
             out[ax, p] = (0.0 if s.pinned[p] else
@@ -77,9 +78,9 @@ def solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma):
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
     total_force(x, v, t, s, force)
-    spring_jacobian(x, s.offsets, s.exists, s.rest, s.stiffness, unit, alpha)
-    spring_jacobian_product(v, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer, q)
-    spring_jacobian_diagonal(s.offsets, s.stiffness, unit, alpha, diag)
+    prepare_jacobian(x, s, s.fem, unit, alpha)
+    jacobian_product(x, v, s, s.fem, unit, alpha, buffer, q)
+    jacobian_diagonal(x, s, s.fem, unit, alpha, diag)
     mass_factor = 1.0 + h * gamma
     for ax in range(3):
         for p in range(n):
@@ -96,7 +97,7 @@ def solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma):
     rz = _dot(r, z)
     iterations = 0
     while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
-        _apply(d, q, s, unit, alpha, buffer, mass_factor, h2)
+        _apply(x, d, q, s, unit, alpha, buffer, mass_factor, h2)
         dq = _dot(d, q)
         if not dq > 0.0:
             break

@@ -1,20 +1,32 @@
 """Extended position-based dynamics (Macklin, Mueller and Chentanez 2016, "XPBD").
 
-Every enabled spring is a distance constraint C = |x_q - x_p| - rest with compliance
-alpha = 1 / k (k = ks, or 0.2 ks for bending: the same material as the force-based
-methods). One step: v <- (1 - damping) v + dt F_ext / m (the Verlet damping per step;
-F_ext = gravity and the other forces, forces.external_force), predict
-x = x + dt v, then ITERATIONS Gauss-Seidel sweeps over the spring list (in SPEC order),
-each applying d_lambda = (-C - alpha~ lambda) / (w_p + w_q + alpha~), alpha~ = alpha / dt^2,
-w = 1/m_p (0 when pinned); then the shared position passes (self-collision, colliders,
-Provot) and v = (x - x_start) / dt for every free point.
-State: positions x, velocities v, start-of-step positions last (3, N), multipliers (6, N).
+Classic model: every enabled spring is a distance constraint C = |x_q - x_p| - rest with
+compliance alpha = 1 / k (k = ks, or 0.2 ks for bending: the same material as the
+force-based methods). FEM model (system.fem, pipeline/fem.py): per triangle the stretch
+constraints C_u = |w_u| - 1, C_v = |w_v| - 1 with alpha = 1 / (a k_stretch) and the shear
+constraint C_s = w_u . w_v with alpha = 1 / (a k_shear) (a: rest area), per interior hinge
+C = theta with alpha = 1 / (2 k_bend edge_factor), so that C^2 / (2 alpha) is the FEM energy
+(constraints with zero stiffness are skipped). One step: v <- (1 - damping) v + dt F_ext / m
+(the Verlet damping per step; F_ext = gravity and the other forces, forces.external_force),
+predict x = x + dt v, then ITERATIONS Gauss-Seidel sweeps over the constraints in a fixed
+order (classic: the spring list in SPEC order; FEM: the triangles anchor by anchor, kind by
+kind, each C_u, C_v, C_s, then the hinges likewise), each applying
+d_lambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~), alpha~ = alpha / dt^2,
+x_i += w_i grad_i C d_lambda, w = 1/m_p (0 when pinned); then the shared position passes
+(self-collision, colliders, Provot on the classic model) and v = (x - x_start) / dt for
+every free point. The model is chosen at compile time (numba prunes `fem is None`): the
+classic kernel does not contain the FEM code.
+State: positions x, velocities v, start-of-step positions last (3, N), multipliers (6, N)
+for the classic springs or (9, N) for the FEM (rows 3 t + (0, 1, 2): C_u, C_v, C_s of the
+triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
 """
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
+from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _hinge,
+                   _hinge_gradient)
 from ..forces import external_force
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
@@ -27,7 +39,9 @@ ITERATIONS = 1  # solver sweeps per step: XPBD's "small steps" regime (Macklin e
 class State(VelocityState):
     def __init__(self, system: System) -> None:
         super().__init__(system)
-        self.multiplier = np.zeros(system.rest.shape)
+        fem = system.fem
+        self.multiplier = (np.zeros(system.rest.shape) if fem is None
+                           else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS, fem.nw * fem.nh)))
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.force, self.multiplier, steps,
@@ -68,6 +82,142 @@ def _solve(x, lam, s, dt2, iterations):
 
 
 @njit(cache=True, nogil=True)
+def _solve_constraints(x, lam, s, fem, dt2, iterations):
+    if fem is None:  # numba prunes the branch not taken: classic scenes get only _solve
+        _solve(x, lam, s, dt2, iterations)
+    else:
+        _solve_fem(x, lam, s, fem, dt2, iterations)
+
+
+@njit(cache=True, nogil=True)
+def _inverse_mass(s, p):
+    return 0.0 if s.pinned[p] else 1.0 / s.mass[p]
+
+
+@njit(cache=True, nogil=True)
+def _point(x, p):
+    return (x[0, p], x[1, p], x[2, p])
+
+
+@njit(cache=True, nogil=True)
+def _move(x, p, scale, g):
+    """x_p += scale g."""
+    x[0, p] += scale * g[0]
+    x[1, p] += scale * g[1]
+    x[2, p] += scale * g[2]
+
+
+@njit(cache=True, nogil=True)
+def _dot3(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+@njit(cache=True, nogil=True)
+def _project(x, lam, row, p, c, compliance, p0, p1, p2, w0, w1, w2, g0, g1, g2):
+    """One XPBD update of the constraint with value c and gradients g0, g1, g2 at the points
+    p0, p1, p2 (inverse masses w0, w1, w2); compliance = alpha / dt^2."""
+    wsum = w0 * _dot3(g0, g0) + w1 * _dot3(g1, g1) + w2 * _dot3(g2, g2)
+    if not wsum > 0.0:
+        return
+    dl = (-c - compliance * lam[row, p]) / (wsum + compliance)
+    lam[row, p] += dl
+    _move(x, p0, w0 * dl, g0)
+    _move(x, p1, w1 * dl, g1)
+    _move(x, p2, w2 * dl, g2)
+
+
+@njit(cache=True, nogil=True)
+def _triangle(x, lam, s, fem, t, p, dt2):
+    """The stretch and shear constraints of the triangle of kind t anchored at p."""
+    area = fem.tri_area[t, p]
+    if not area > 0.0:
+        return
+    p0 = p + fem.offsets[TRIANGLE_VERTICES[t, 0]]
+    p1 = p + fem.offsets[TRIANGLE_VERTICES[t, 1]]
+    p2 = p + fem.offsets[TRIANGLE_VERTICES[t, 2]]
+    w0, w1, w2 = _inverse_mass(s, p0), _inverse_mass(s, p1), _inverse_mass(s, p2)
+    i00, i01 = fem.tri_inv[t, 0, p], fem.tri_inv[t, 1, p]
+    i10, i11 = fem.tri_inv[t, 2, p], fem.tri_inv[t, 3, p]
+    # stretch: C = |w| - 1, dC/dw = w / |w|; w_u = i00 e1 + i10 e2, w_v = i01 e1 + i11 e2
+    if fem.k_stretch > 0.0:
+        compliance = 1.0 / (area * fem.k_stretch * dt2)
+        for c in range(2):
+            ia, ib = (i00, i10) if c == 0 else (i01, i11)
+            x0, x1, x2 = _point(x, p0), _point(x, p1), _point(x, p2)
+            w = (ia * (x1[0] - x0[0]) + ib * (x2[0] - x0[0]),
+                 ia * (x1[1] - x0[1]) + ib * (x2[1] - x0[1]),
+                 ia * (x1[2] - x0[2]) + ib * (x2[2] - x0[2]))
+            length = np.sqrt(_dot3(w, w))
+            if not length > 0.0:
+                continue
+            n = (w[0] / length, w[1] / length, w[2] / length)
+            g1 = (ia * n[0], ia * n[1], ia * n[2])
+            g2 = (ib * n[0], ib * n[1], ib * n[2])
+            g0 = (-g1[0] - g2[0], -g1[1] - g2[1], -g1[2] - g2[2])
+            _project(x, lam, 3 * t + c, p, length - 1.0, compliance, p0, p1, p2, w0, w1, w2,
+                     g0, g1, g2)
+    # shear: C = w_u . w_v, dC/dw_u = w_v, dC/dw_v = w_u
+    if fem.k_shear > 0.0:
+        compliance = 1.0 / (area * fem.k_shear * dt2)
+        x0, x1, x2 = _point(x, p0), _point(x, p1), _point(x, p2)
+        e1 = (x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2])
+        e2 = (x2[0] - x0[0], x2[1] - x0[1], x2[2] - x0[2])
+        wu = (i00 * e1[0] + i10 * e2[0], i00 * e1[1] + i10 * e2[1], i00 * e1[2] + i10 * e2[2])
+        wv = (i01 * e1[0] + i11 * e2[0], i01 * e1[1] + i11 * e2[1], i01 * e1[2] + i11 * e2[2])
+        g1 = (i00 * wv[0] + i01 * wu[0], i00 * wv[1] + i01 * wu[1], i00 * wv[2] + i01 * wu[2])
+        g2 = (i10 * wv[0] + i11 * wu[0], i10 * wv[1] + i11 * wu[1], i10 * wv[2] + i11 * wu[2])
+        g0 = (-g1[0] - g2[0], -g1[1] - g2[1], -g1[2] - g2[2])
+        _project(x, lam, 3 * t + 2, p, _dot3(wu, wv), compliance, p0, p1, p2, w0, w1, w2,
+                 g0, g1, g2)
+
+
+@njit(cache=True, nogil=True)
+def _bend(x, lam, s, fem, k, p, dt2):
+    """The bending constraint C = theta of the hinge of kind k anchored at p."""
+    factor = fem.edge_factor[k, p]
+    if not factor > 0.0:
+        return
+    pa = p + fem.offsets[HINGE_VERTICES[k, 0]]
+    pb = p + fem.offsets[HINGE_VERTICES[k, 1]]
+    pc = p + fem.offsets[HINGE_VERTICES[k, 2]]
+    pd = p + fem.offsets[HINGE_VERTICES[k, 3]]
+    theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge(
+        _point(x, pa), _point(x, pb), _point(x, pc), _point(x, pd))
+    if not ok:
+        return
+    q1 = (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1)
+    q2 = (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2)
+    ga, gb, gc, gd = _hinge_gradient(length, q1, q2, t1, t2)
+    wa, wb = _inverse_mass(s, pa), _inverse_mass(s, pb)
+    wc, wd = _inverse_mass(s, pc), _inverse_mass(s, pd)
+    wsum = wa * _dot3(ga, ga) + wb * _dot3(gb, gb) + wc * _dot3(gc, gc) + wd * _dot3(gd, gd)
+    if not wsum > 0.0:
+        return
+    compliance = 1.0 / (2.0 * fem.k_bend * factor * dt2)
+    row = 3 * TRIANGLE_KINDS + k
+    dl = (-theta - compliance * lam[row, p]) / (wsum + compliance)
+    lam[row, p] += dl
+    _move(x, pa, wa * dl, ga)
+    _move(x, pb, wb * dl, gb)
+    _move(x, pc, wc * dl, gc)
+    _move(x, pd, wd * dl, gd)
+
+
+@njit(cache=True, nogil=True)
+def _solve_fem(x, lam, s, fem, dt2, iterations):
+    """Gauss-Seidel sweeps over the FEM constraints: triangles, then hinges, anchor order."""
+    n = x.shape[1]
+    for _ in range(iterations):
+        for p in range(n):
+            for t in range(TRIANGLE_KINDS):
+                _triangle(x, lam, s, fem, t, p, dt2)
+        if fem.k_bend > 0.0:
+            for p in range(n):
+                for k in range(HINGE_KINDS):
+                    _bend(x, lam, s, fem, k, p, dt2)
+
+
+@njit(cache=True, nogil=True)
 def advance(s, x, v, last, force, lam, steps, first_step, iterations):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     h = s.dt
@@ -84,7 +234,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
                     v[a, p] = keep * v[a, p] + h * (force[a, p] / s.mass[p])
                     x[a, p] += h * v[a, p]
         lam[:] = 0.0
-        _solve(x, lam, s, h * h, iterations)
+        _solve_constraints(x, lam, s, s.fem, h * h, iterations)
         position_passes(x, last, s, t)
         for p in range(n):
             if not s.pinned[p]:
