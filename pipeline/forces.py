@@ -5,8 +5,8 @@ forces and Jacobians give way to pipeline.fem's (`internal_forces` and the `jaco
 functions choose; numba compiles only the branch of the System's model).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
-adds to f and does nothing when its params say it is off, packed into the System by
-system.build_system and called from `total_force`.
+adds to f and does nothing when its params are None (numba then prunes its code), packed
+into the System by system.build_system and called from `add_other_forces`.
 
 Positions and forces are structure-of-arrays, shape (3, N). The spring forces are computed
 direction by direction into `spring_force` (6, 3, N + pad): contiguous loops the compiler
@@ -20,9 +20,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from .model import DIRECTION_DI, DIRECTION_DJ
 from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
                   fem_jacobian_diagonal)
+from .model import DIRECTION_DI, DIRECTION_DJ
 from .wind import add_wind_force
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
@@ -169,7 +169,6 @@ def elastic_energy(x: np.ndarray, s) -> float:
     if s.fem is not None:
         return fem_energy(x, s.fem)
     return spring_energy(x, s.offsets, s.exists, s.rest, s.stiffness)
-
 
 
 @njit(cache=True, nogil=True)
