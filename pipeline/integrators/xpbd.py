@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _hinge,
-                   _hinge_gradient)
+from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
+                   _deformation, _dot, _hinge, _hinge_gradient, _scale)
 from ..forces import external_force
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
@@ -108,15 +108,10 @@ def _move(x, p, scale, g):
 
 
 @njit(cache=True, nogil=True)
-def _dot3(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-@njit(cache=True, nogil=True)
 def _project(x, lam, row, p, c, compliance, p0, p1, p2, w0, w1, w2, g0, g1, g2):
     """One XPBD update of the constraint with value c and gradients g0, g1, g2 at the points
     p0, p1, p2 (inverse masses w0, w1, w2); compliance = alpha / dt^2."""
-    wsum = w0 * _dot3(g0, g0) + w1 * _dot3(g1, g1) + w2 * _dot3(g2, g2)
+    wsum = w0 * _dot(g0, g0) + w1 * _dot(g1, g1) + w2 * _dot(g2, g2)
     if not wsum > 0.0:
         return
     dl = (-c - compliance * lam[row, p]) / (wsum + compliance)
@@ -141,33 +136,26 @@ def _triangle(x, lam, s, fem, t, p, dt2):
     # stretch: C = |w| - 1, dC/dw = w / |w|; w_u = i00 e1 + i10 e2, w_v = i01 e1 + i11 e2
     if fem.k_stretch > 0.0:
         compliance = 1.0 / (area * fem.k_stretch * dt2)
-        for c in range(2):
+        for c in range(2):  # recomputed after each projection: Gauss-Seidel
             ia, ib = (i00, i10) if c == 0 else (i01, i11)
-            x0, x1, x2 = _point(x, p0), _point(x, p1), _point(x, p2)
-            w = (ia * (x1[0] - x0[0]) + ib * (x2[0] - x0[0]),
-                 ia * (x1[1] - x0[1]) + ib * (x2[1] - x0[1]),
-                 ia * (x1[2] - x0[2]) + ib * (x2[2] - x0[2]))
-            length = np.sqrt(_dot3(w, w))
+            wu, wv = _deformation(_point(x, p0), _point(x, p1), _point(x, p2), i00, i01, i10,
+                                  i11)
+            w = wu if c == 0 else wv
+            length = np.sqrt(_dot(w, w))
             if not length > 0.0:
                 continue
             n = (w[0] / length, w[1] / length, w[2] / length)
-            g1 = (ia * n[0], ia * n[1], ia * n[2])
-            g2 = (ib * n[0], ib * n[1], ib * n[2])
-            g0 = (-g1[0] - g2[0], -g1[1] - g2[1], -g1[2] - g2[2])
+            g1, g2 = _scale(n, ia), _scale(n, ib)
+            g0 = _comb(g1, -1.0, g2, -1.0)
             _project(x, lam, 3 * t + c, p, length - 1.0, compliance, p0, p1, p2, w0, w1, w2,
                      g0, g1, g2)
     # shear: C = w_u . w_v, dC/dw_u = w_v, dC/dw_v = w_u
     if fem.k_shear > 0.0:
         compliance = 1.0 / (area * fem.k_shear * dt2)
-        x0, x1, x2 = _point(x, p0), _point(x, p1), _point(x, p2)
-        e1 = (x1[0] - x0[0], x1[1] - x0[1], x1[2] - x0[2])
-        e2 = (x2[0] - x0[0], x2[1] - x0[1], x2[2] - x0[2])
-        wu = (i00 * e1[0] + i10 * e2[0], i00 * e1[1] + i10 * e2[1], i00 * e1[2] + i10 * e2[2])
-        wv = (i01 * e1[0] + i11 * e2[0], i01 * e1[1] + i11 * e2[1], i01 * e1[2] + i11 * e2[2])
-        g1 = (i00 * wv[0] + i01 * wu[0], i00 * wv[1] + i01 * wu[1], i00 * wv[2] + i01 * wu[2])
-        g2 = (i10 * wv[0] + i11 * wu[0], i10 * wv[1] + i11 * wu[1], i10 * wv[2] + i11 * wu[2])
-        g0 = (-g1[0] - g2[0], -g1[1] - g2[1], -g1[2] - g2[2])
-        _project(x, lam, 3 * t + 2, p, _dot3(wu, wv), compliance, p0, p1, p2, w0, w1, w2,
+        wu, wv = _deformation(_point(x, p0), _point(x, p1), _point(x, p2), i00, i01, i10, i11)
+        g1, g2 = _comb(wv, i00, wu, i01), _comb(wv, i10, wu, i11)
+        g0 = _comb(g1, -1.0, g2, -1.0)
+        _project(x, lam, 3 * t + 2, p, _dot(wu, wv), compliance, p0, p1, p2, w0, w1, w2,
                  g0, g1, g2)
 
 
@@ -185,12 +173,10 @@ def _bend(x, lam, s, fem, k, p, dt2):
         _point(x, pa), _point(x, pb), _point(x, pc), _point(x, pd))
     if not ok:
         return
-    q1 = (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1)
-    q2 = (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2)
-    ga, gb, gc, gd = _hinge_gradient(length, q1, q2, t1, t2)
+    ga, gb, gc, gd = _hinge_gradient(length, _scale(n1, inv1), _scale(n2, inv2), t1, t2)
     wa, wb = _inverse_mass(s, pa), _inverse_mass(s, pb)
     wc, wd = _inverse_mass(s, pc), _inverse_mass(s, pd)
-    wsum = wa * _dot3(ga, ga) + wb * _dot3(gb, gb) + wc * _dot3(gc, gc) + wd * _dot3(gd, gd)
+    wsum = wa * _dot(ga, ga) + wb * _dot(gb, gb) + wc * _dot(gc, gc) + wd * _dot(gd, gd)
     if not wsum > 0.0:
         return
     compliance = 1.0 / (2.0 * fem.k_bend * factor * dt2)
