@@ -57,6 +57,7 @@ REFERENCE = "rk4"
 REFERENCE_FACTOR = 16  # the reference runs at dt_scene / 16 ...
 CHECK_FACTOR = 32  # ... and is checked against dt_scene / 32
 STEPS_PER_FRAME_SWEEP = (1, 2, 4, 8, 15, 30, 60, 120)
+AUTO_TOLERANCES = (0.5, 1.0, 2.0, 4.0)  # fidelity auto, one work-precision point each (px)
 KS_SWEEP = (1e2, 1e3, 1e4, 1e5, 1e6)  # classic model: cloth.ks (N/m)
 STRETCH_SWEEP = (3e1, 3e2, 3e3, 3e4)  # FEM: cloth.fem.stretch (N/m), the default 300 inside
 DEFAULT_GRID = 30  # work-precision grid (points per side) unless --grid: at most this
@@ -259,7 +260,8 @@ def warm_up(scene) -> None:
 # --- (b) work-precision -------------------------------------------------------------------
 
 def work_precision(scene, t_end: float = 1.0, sweep=STEPS_PER_FRAME_SWEEP,
-                   integrators=INTEGRATORS, log=print) -> tuple[list[dict], dict]:
+                   integrators=INTEGRATORS, log=print,
+                   auto_tolerances=AUTO_TOLERANCES) -> tuple[list[dict], dict]:
     """Rows (model, integrator, steps_per_frame, dt, error, seconds, ok, ...) and reference
     facts, for the scene's model."""
     base = Run(scene, REFERENCE)
@@ -293,7 +295,34 @@ def work_precision(scene, t_end: float = 1.0, sweep=STEPS_PER_FRAME_SWEEP,
                 f"time={seconds:.3f}s guard={'ok' if ok else 'TRIPPED'} "
                 f"strain99={strain:.3f}{' CRUMPLED' if crumpled else ''}"
                 f"{f' cg/step={cg_per_step:.1f}' if cg is not None else ''}")
+    for tolerance in auto_tolerances:
+        rows.append(auto_point(scene, tolerance, t_end, ref.x, model))
+        r = rows[-1]
+        log(f"  {model:7s} auto {tolerance:g} px   spf={r['steps_per_frame']:4d} (median) "
+            f"error={r['rms_error']:.3g} m time={r['seconds']:.3f}s")
     return rows, info
+
+
+def auto_point(scene, tolerance: float, t_end: float, reference: np.ndarray, model: str) -> dict:
+    """One work-precision row of fidelity auto at `tolerance` px (integrator "auto")."""
+    from .simulation import DivergenceError, Simulation
+
+    data = copy.deepcopy(scene_data(scene))
+    data.setdefault("simulation", {}).update(fidelity="auto", tolerance_px=tolerance)
+    sim = Simulation(data)
+    frames = round(t_end * sim.scene.simulation.frames_per_sec)
+    start = time.perf_counter()
+    try:
+        sim.advance(frames)
+        ok = True
+    except DivergenceError:
+        ok = False
+    seconds = time.perf_counter() - start
+    used = sim.stepper.steps_used or [0]
+    return {"model": model, "integrator": "auto", "steps_per_frame": int(np.median(used)),
+            "dt": math.nan, "rms_error": rms(sim._state.x, reference) if ok else math.nan,
+            "seconds": seconds, "ok": ok, "guard_ok": ok, "probe_strain_p99": math.nan,
+            "cg_iterations_per_step": math.nan, "tolerance_px": tolerance}
 
 
 # --- stability ------------------------------------------------------------------------------
@@ -377,7 +406,8 @@ def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
 
 def write_csv(path: Path, rows: list[dict]) -> None:
     with path.open("w", newline="") as fh:
-        writer = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        fields = list(dict.fromkeys(k for r in rows for k in r))  # auto rows add a column
+        writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
         writer.writerows(rows)
 
@@ -428,6 +458,13 @@ def chart_work_precision(rows, infos: dict, title: str, stem: Path,
             tripped = [str(r["steps_per_frame"]) for r in pts if not r["guard_ok"]]
             if tripped:
                 failed.append(f"{name} {','.join(tripped)}")
+        auto = [r for r in rows if r["integrator"] == "auto" and r["model"] == model and r["ok"]]
+        if auto:
+            ax.loglog([r["seconds"] for r in auto], [r["rms_error"] for r in auto], "*",
+                      color="black", ms=9, label="fidelity auto (label: tolerance px)")
+            for r in auto:
+                ax.annotate(f"{r['tolerance_px']:g}", (r["seconds"], r["rms_error"]),
+                            fontsize=6, xytext=(3, -8), textcoords="offset points")
         ax.axhline(info["reference_check_rms"], color="gray", ls=":", lw=1,
                    label="reference uncertainty (16x vs 32x)")
         ax.set_xlabel("wall-clock seconds for the run (one thread)")

@@ -143,7 +143,8 @@ def build_parser() -> argparse.ArgumentParser:
             "Subcommands: 'render report SCENE.json --out report.html' compares shaders and "
             "parameter sweeps side by side (also reached with --shader all or an .html "
             "output; see 'render report --help'); 'render bench SCENE.json --out DIR' charts "
-            "the integrators' accuracy against speed and their stability limits."),
+            "the integrators' accuracy against speed and their stability limits; 'render plan "
+            "SCENE.json --fidelity auto' says what will be modelled and why."),
         formatter_class=argparse.RawDescriptionHelpFormatter,
         allow_abbrev=False,
     )
@@ -171,6 +172,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="random seed (same as --set simulation.seed=N)")
     p.add_argument("--integrator", metavar="NAME",
                    help="integrator (same as --set simulation.integrator=NAME)")
+    p.add_argument("--fidelity", choices=("exact", "auto"),
+                   help="exact (default): every step as the scene says; auto: model no more "
+                        "than the scene needs, within --tolerance pixels per frame (same as "
+                        "--set simulation.fidelity=...; see 'render plan')")
+    p.add_argument("--tolerance", type=_positive_float("tolerance"), metavar="PX",
+                   help="with --fidelity auto: the error in pixels a frame may add (default 1; "
+                        "same as --set simulation.tolerance_px=PX)")
     p.add_argument("--set", dest="overrides", action="append", default=[], type=_override,
                    metavar="KEY=VALUE",
                    help="override a scene value, e.g. --set cloth.ks=8000 --set "
@@ -274,6 +282,19 @@ def _overrides(args) -> list[str]:
         ov.append(f"simulation.seed={args.seed}")
     if args.integrator is not None:
         ov.append(f"simulation.integrator={args.integrator}")
+    return ov + fidelity_overrides(args)
+
+
+def fidelity_overrides(args) -> list[str]:
+    """--fidelity, --tolerance and --size as scene overrides (auto's tolerance is in pixels
+    of the image rendered)."""
+    ov = []
+    if args.fidelity is not None:
+        ov.append(f"simulation.fidelity={args.fidelity}")
+    if args.tolerance is not None:
+        ov.append(f"simulation.tolerance_px={args.tolerance!r}")
+    if getattr(args, "size", None) is not None:
+        ov += [f"render.width={args.size[0]}", f"render.height={args.size[1]}"]
     return ov
 
 
@@ -477,6 +498,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         err.say(f"{n_out} frame{'s' if n_out != 1 else ''}{size} -> {', '.join(what)}; "
                 f"simulate {timers.simulate:.2f} s, render {timers.render:.2f} s, "
                 f"encode {timers.encode:.2f} s, total {time.perf_counter() - t_wall:.2f} s")
+        if sim.stepper is not None:
+            err.say(sim.stepper.summary_text())
     return status
 
 
@@ -632,6 +655,7 @@ def _remove_quietly(path: Path) -> None:
 SUBCOMMANDS = {  # `render NAME ...` runs the module's main(argv)
     "report": "pipeline.report",  # shaders and parameter sweeps side by side (HTML + PNG)
     "bench": "pipeline.bench",  # integrators: work-precision and stability charts
+    "plan": "pipeline.plan",  # what fidelity exact or auto will model, and why
 }
 
 

@@ -190,6 +190,8 @@ class SimulationSettings:
     integrator: str = "verlet"
     seed: int = 0
     self_collision: bool | str = "auto"  # True, False or "auto" (on for vertical cloth)
+    fidelity: str = "exact"  # "exact" or "auto" (pipeline.fidelity)
+    tolerance_px: float = 1.0  # auto: screen-space error a frame may add
 
 
 @dataclass(frozen=True)
@@ -764,6 +766,8 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         integrator=str(s.get("integrator", d.integrator)),
         seed=int(s.get("seed", d.seed)),
         self_collision=s.get("self_collision", d.self_collision),
+        fidelity=str(s.get("fidelity", d.fidelity)),
+        tolerance_px=float(s.get("tolerance_px", d.tolerance_px)),
     )
 
     camera = None

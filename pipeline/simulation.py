@@ -40,13 +40,26 @@ class Simulation:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.model: ClothModel = build_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
+        self.omega_max, self.dt_max = stability_limit(self.model)
         self.integrator = self.scene.simulation.integrator
+        auto = self.scene.simulation.fidelity == "auto"
+        self.integrator_reasons: list[str] = []
+        if auto:
+            from .fidelity import choose_integrator
+
+            self.integrator, self.integrator_reasons = choose_integrator(self.scene, self.dt_max)
+            self.system = self.system._replace(colliders_last=True)
         module = integrator_module(self.integrator)
         self._state = module.State(self.system)
         self.step_count = 0
-        self.omega_max, self.dt_max = stability_limit(self.model)
         self.step_limited = module.CONDITIONALLY_STABLE
-        if self.step_limited and self.system.dt > self.dt_max:
+        #: the frame-by-frame controller of fidelity "auto" (pipeline.fidelity), else None
+        self.stepper = None
+        if auto:
+            from .fidelity import AutoStepper
+
+            self.stepper = AutoStepper(self)
+        elif self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
 
     # --- state -------------------------------------------------------------------------
@@ -81,18 +94,34 @@ class Simulation:
 
     @property
     def time(self) -> float:
+        if self.stepper is not None:
+            return self.stepper.frame * self.stepper.frame_dt
         return self.step_count * self.system.dt
+
+    @property
+    def plan(self):
+        """What will be modelled and why (pipeline.fidelity.Plan)."""
+        from .fidelity import make_plan
+
+        return make_plan(self)
 
     # --- stepping ----------------------------------------------------------------------
     def step(self, steps: int = 1) -> None:
-        """Advance by `steps` time steps; raises DivergenceError if the run blows up."""
+        """Advance by `steps` time steps; raises DivergenceError if the run blows up. Under
+        fidelity auto the steps are chosen per frame: use advance()."""
+        if self.stepper is not None:
+            raise ValueError("under fidelity auto the steps are chosen per frame: use advance()")
         done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
         if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
             raise DivergenceError(self._divergence_message(kinetic, bound))
 
     def advance(self, frames: int = 1) -> None:
-        """Advance by whole frames (steps_per_frame steps each)."""
+        """Advance by whole frames (steps_per_frame steps each; fidelity auto: as chosen)."""
+        if self.stepper is not None:
+            for _ in range(frames):
+                self.stepper.advance_frame()
+            return
         self.step(frames * self.system.steps_per_frame)
 
     def frames(self, count: int):

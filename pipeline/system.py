@@ -17,6 +17,7 @@ from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_
 from .fem import FemParams, estimate_omega_max
 from .forces import direction_offsets, gather_order, spring_force_buffer
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
+from .reach import Reach, new_reach, reach_check
 from .scene import Scene
 from .self_collision import SelfCollisionScratch, self_collide
 from .wind import WindParams, max_wind_speed, pack_wind
@@ -53,6 +54,8 @@ class System(NamedTuple):
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
     mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
+    reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
+    colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
 
 
 def build_system(scene: Scene, model: ClothModel) -> System:
@@ -94,6 +97,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         mask=candidate_mask(model.n),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
         + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent),
+        reach=new_reach(model.n),
+        colliders_last=False,
     )
 
 
@@ -215,13 +220,20 @@ def position_passes(x, last, system, t_start):
     update from the start-of-step positions `last` (at time t_start) over one step:
     self-collision (when enabled), the colliders in scene order (friction measured from
     `last`), then Provot's stretch limit (classic model only: the FEM's own stretch
-    stiffness bounds its strain)."""
+    stiffness bounds its strain). With `colliders_last` (fidelity auto) the colliders come
+    after Provot, so no point ends a step inside a collider. Passes that pipeline.reach
+    proves idle are skipped."""
     s = system
-    if s.self_collision:
+    reach_check(x, s.reach, s.colliders.active, s.thickness)
+    if s.self_collision and s.reach.self_on[0]:
+        s.reach.counts[1] += 1
         self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
                      s.steps_per_frame, s.scratch)
-    collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
+    if not s.colliders_last:
+        collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     _classic_stretch_limit(x, s, s.fem)
+    if s.colliders_last:
+        collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
 
 @njit(cache=True, nogil=True)

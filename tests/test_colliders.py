@@ -17,7 +17,7 @@ from pipeline.scene import Box, Keyframe, Plane, Sphere, load_scene
 def _collide(table, p, last, t_start, t_end):
     update_poses(table, t_start, t_end)
     return collide_point(table.kinds, table.params, table.data, table.key_count, table.pivot,
-                         table.pose, p[0], p[1], p[2], last[0], last[1], last[2])
+                         table.pose, table.active, p[0], p[1], p[2], last[0], last[1], last[2])
 
 
 def collide(colliders, p, last, t_start=0.0, t_end=0.0):

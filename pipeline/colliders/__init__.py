@@ -67,6 +67,7 @@ class ColliderTable(NamedTuple):
     key_count: np.ndarray  # (C,) int64, 0 = static
     pivot: np.ndarray  # (C, 3)
     pose: np.ndarray  # (C, 2, POSE_WIDTH) scratch: poses at the start and the end of a step
+    active: np.ndarray  # (C,) uint8: 0 = skipped while nothing can reach it (pipeline.reach)
 
 
 def euler_matrix(degrees: Sequence[float]) -> np.ndarray:
@@ -96,7 +97,7 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
         for k, key in enumerate(obj.keyframes):
             keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
     return ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
-                         np.zeros((count, 2, POSE_WIDTH)))
+                         np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
 
 
 def collider_pose(obj, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -155,11 +156,11 @@ def pose_at(keys, count, t, out):
             k += 1
         w = (t - keys[k, 0]) / (keys[k + 1, 0] - keys[k, 0])
     k2 = min(k + 1, count - 1)
-    v = np.empty(6)
-    for i in range(6):
-        v[i] = keys[k, 1 + i] + w * (keys[k2, 1 + i] - keys[k, 1 + i])
-    _euler_into(out, 0, v[3], v[4], v[5])
-    out[9], out[10], out[11] = v[0], v[1], v[2]
+    for i in range(3):  # translation, then the angles: no scratch array per step
+        out[9 + i] = keys[k, 1 + i] + w * (keys[k2, 1 + i] - keys[k, 1 + i])
+    _euler_into(out, 0, keys[k, 4] + w * (keys[k2, 4] - keys[k, 4]),
+                keys[k, 5] + w * (keys[k2, 5] - keys[k, 5]),
+                keys[k, 6] + w * (keys[k2, 6] - keys[k, 6]))
 
 
 # The transforms index the pose table directly: a view per point costs more than the
@@ -195,10 +196,13 @@ def _project(kind, params, c, data, x, y, z, lx, ly, lz):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def collide_point(kinds, params, data, key_count, pivot, pose, x, y, z, lx, ly, lz):
-    """Apply every collider, in order, to the point at (x, y, z) that was at (lx, ly, lz)
-    at the start of the step (the fields of a ColliderTable; poses from update_poses)."""
+def collide_point(kinds, params, data, key_count, pivot, pose, active, x, y, z, lx, ly, lz):
+    """Apply every active collider, in order, to the point at (x, y, z) that was at
+    (lx, ly, lz) at the start of the step (the fields of a ColliderTable; poses from
+    update_poses)."""
     for c in range(kinds.shape[0]):
+        if active[c] == 0:
+            continue
         kind = kinds[c]
         if key_count[c] == 0:
             x, y, z = _project(kind, params, c, data, x, y, z, lx, ly, lz)
@@ -225,14 +229,14 @@ def update_poses(table, t_start, t_end):
 @njit(cache=True, nogil=True, parallel=True)
 def _collide_points(x, last, pinned, table):
     kinds, params, data = table.kinds, table.params, table.data
-    key_count, pivot, pose = table.key_count, table.pivot, table.pose
+    key_count, pivot, pose, active = table.key_count, table.pivot, table.pose, table.active
     n = x.shape[1]
     for chunk in prange(CHUNKS):
         for p in range((chunk * n) // CHUNKS, ((chunk + 1) * n) // CHUNKS):
             if pinned[p]:
                 continue
             x[0, p], x[1, p], x[2, p] = collide_point(
-                kinds, params, data, key_count, pivot, pose, x[0, p], x[1, p], x[2, p],
+                kinds, params, data, key_count, pivot, pose, active, x[0, p], x[1, p], x[2, p],
                 last[0, p], last[1, p], last[2, p])
 
 
@@ -240,7 +244,7 @@ def _collide_points(x, last, pinned, table):
 def collide_all(x, last, pinned, table, t_start, t_end):
     """Apply the colliders to every free point of x (3, N) for the step from t_start (when
     the points were at `last`) to t_end."""
-    if table.kinds.shape[0] == 0:
+    if not np.any(table.active):  # also when there is no collider
         return
     update_poses(table, t_start, t_end)
     _collide_points(x, last, pinned, table)

@@ -42,6 +42,15 @@ def pack(obj: MeshCollider, data) -> np.ndarray:
                      2.0 * grid.error + 1e-12, _TOLERANCE * obj.thickness * grid.spacing / 4.0])
 
 
+def grid_bounds(obj: MeshCollider) -> tuple[np.ndarray, np.ndarray]:
+    """(low (3,), high (3,)) corners of the box outside which `obj` acts on nothing (its
+    distance grid's nodes, padded by one cell), in its rest frame."""
+    grid = _grid(*_key(obj), float(obj.thickness), bool(obj.solid))
+    nz, ny, nx = grid.values.shape
+    h = grid.spacing
+    return grid.origin - h, grid.origin + h * np.array([nx, ny, nz], dtype=np.float64)
+
+
 def collider_mesh_arrays(obj: MeshCollider) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3) float64, faces (F, 3) int64) of `obj` placed in its rest frame
     (read-only arrays, cached)."""

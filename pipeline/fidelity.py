@@ -1,0 +1,498 @@
+"""`fidelity: auto`: model no more than a scene needs, within a tolerance in pixels.
+
+The scene's physics is what it means at a converged step: the damping is a drag rate fixed
+at the step the file gives (gamma = -ln(1 - c) / dt0; a step dt gets 1 - (1 - c)^(dt/dt0)),
+Verlet starts from rest with the Taylor start (x_last = x0 + a0 dt^2 / 2), and the colliders
+act after Provot's stretch limit so that no point ends a step inside one. Then, frame by frame:
+
+1. The step, by error control (step doubling over a frame). A frame is advanced twice from
+   the same state: with m = n // 2 steps (B) and with n steps (A, kept). The local error of
+   A is estimated as |A - B| / ((n/m)^p - 1) (p the integrator's order), measured on screen:
+   the largest distance between a point's two projections through the scene's camera, in
+   pixels of the rendered image. A frame is accepted when that is at most SAFETY times
+   `tolerance_px`, else redone with more steps; the next frame's n follows the usual
+   controller n' = n (err / target)^(1/p) (bounded to halve or double). n never goes below
+   twice the stability floor (so that B is stable too), and a step the divergence guard
+   rejects is redone with twice the steps.
+2. The integrator: Verlet, unless its stability floor makes implicit Euler cheaper per frame
+   at the measured cost ratio of one implicit step to one Verlet step (IMPLICIT_COST).
+3. Passes: pipeline.reach skips self-collision and colliders where nothing can touch
+   (bit-identical to running them).
+4. Sleep: with nothing in the scene varying in time (no wind, no keyframe still to come)
+   and every point moving less than SLEEP_FRACTION of the tolerance per frame for
+   SLEEP_TIME seconds, the cloth sleeps: later frames repeat it at no cost, until a
+   keyframe starts.
+docs/fidelity.md has the calibration and the measured costs and errors.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from .forces import total_force
+from .reach import arm, budget_for
+from .scene import Scene
+
+#: accepted estimate per frame: SAFETY[model] * tolerance (calibrated: docs/fidelity.md)
+SAFETY = {"classic": 1.0, "fem": 0.5}
+SLEEP_FRACTION = 0.05  # quiet frame: no point moves this share of the tolerance ...
+SLEEP_TIME = 0.5  # ... for this long, and the motion decays so that what is left ...
+SLEEP_DRIFT = 0.25  # ... adds up to less than this share of the tolerance
+SLEEP_HORIZON = 10.0  # seconds of motion counted when it does not decay
+STABILITY_MARGIN = 0.9  # steps stay below this share of the explicit stability limit
+#: order of the error in the step per frame: Verlet is second order, but the classic
+#: model's stretch limit (one Provot pass per step) makes it first order (docs/fidelity.md)
+ORDER = {("verlet", "classic"): 1, ("verlet", "fem"): 2, ("implicit-euler", "classic"): 1,
+         ("implicit-euler", "fem"): 1}
+GROWTH = 1.5  # the steps per frame change by at most this factor from frame to frame
+MAX_REDOS = 2  # a frame over the tolerance is redone at most this often, then kept
+COARSE_RATIO = 1.25  # the coarse run has at most 1/this of the steps (>= the floor)
+REARM_EVERY = 8  # frames between looks for passes that cannot act (pipeline.reach)
+MAX_CHECK_EVERY = 16  # error estimates every frame, thinned out to this while far below
+CHECK_COST = 1.5  # steps per kept step on a frame with an error estimate
+#: cost of one implicit-Euler step in Verlet steps (benchmarks/sim.py --features, 2026-11-23)
+IMPLICIT_COST = {"classic": 20.0, "fem": 41.9}
+
+
+@dataclass
+class Plan:
+    """What `fidelity` will model and why (`render plan`, `Simulation.plan`)."""
+
+    fidelity: str
+    integrator: str
+    steps_per_frame_exact: int
+    steps_per_frame_min: int  # auto: the stability floor (x2 for the error estimate)
+    steps_per_frame_start: int
+    steps_per_frame_max: int
+    tolerance_px: float | None
+    metres_per_px: float | None  # at the cloth's nearest point, the scene's camera
+    image_height: int
+    stability_limit_s: float
+    self_collision: str
+    colliders: list[dict] = field(default_factory=list)
+    sleeps: str = ""
+    predicted_cost: float = 1.0  # steps per frame against exact's, before sleeping
+    reasons: list[str] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    def lines(self) -> list[str]:
+        """The plan as text, one fact a line."""
+        out = [f"fidelity {self.fidelity}: integrator {self.integrator}"]
+        if self.fidelity == "exact":
+            out.append(f"steps per frame {self.steps_per_frame_exact} (as the file says)")
+        else:
+            out.append(f"tolerance {self.tolerance_px:g} px = {self.metres_per_px * 1e3:.3g} mm at "
+                       f"the cloth's nearest point ({self.image_height} px high image)")
+            if self.steps_per_frame_min == self.steps_per_frame_max:
+                out.append(f"steps per frame {self.steps_per_frame_min}, as the file says: the "
+                           "classic model's stretch limit acts once per step, so its step "
+                           "count is part of the model (docs/fidelity.md)")
+            else:
+                out.append(f"steps per frame {self.steps_per_frame_min}.."
+                           f"{self.steps_per_frame_max}, starting at "
+                           f"{self.steps_per_frame_start} (exact: {self.steps_per_frame_exact}),"
+                           " chosen per frame by step doubling")
+        out.append(f"self-collision: {self.self_collision}")
+        for c in self.colliders:
+            out.append(f"collider {c['name']}: {c['status']}")
+        if self.sleeps:
+            out.append(f"sleep: {self.sleeps}")
+        if self.fidelity == "auto":
+            out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's steps at the start "
+                       f"(error estimates included), nothing while asleep")
+        out.extend(self.reasons)
+        return out
+
+
+def metres_per_pixel(camera, points: np.ndarray) -> float:
+    """The world length that projects to one pixel at the point of `points` (N, 3) nearest
+    to the camera (perspective: 2 z tan(vfov / 2) / image height)."""
+    eye = np.asarray(camera.eye)
+    forward = np.asarray(camera.target) - eye
+    forward /= np.linalg.norm(forward)
+    depth = max(float(np.min((points - eye) @ forward)), camera.near)
+    return 2.0 * depth * math.tan(math.radians(camera.vfov) / 2.0) / camera.height
+
+
+def screen_distance(camera, a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance in pixels between the projections of a[i] and b[i], (N, 3) each."""
+    pa, pb = camera.project(a)[:, :2], camera.project(b)[:, :2]
+    d = np.sqrt(np.sum((pa - pb) ** 2, axis=1))
+    return float(np.max(d)) if len(d) else 0.0
+
+
+def wake_time(scene: Scene, t: float) -> float | None:
+    """The earliest time >= t at which something in the scene varies in time (now, if it
+    does now; None if never): wind always varies, a keyframed collider while before its
+    last key."""
+    if scene.wind is not None:
+        return t
+    times = [k.time for c in scene.colliders for k in c.keyframes]
+    firsts = [c.keyframes[0].time for c in scene.colliders if c.keyframes]
+    lasts = [c.keyframes[-1].time for c in scene.colliders if c.keyframes]
+    if not times or t >= max(lasts):
+        return None
+    if any(f <= t < last for f, last in zip(firsts, lasts)):
+        return t
+    return min(f for f in firsts if f > t)
+
+
+class AutoStepper:
+    """Advances a Simulation's state frame by frame under `fidelity: auto`."""
+
+    def __init__(self, sim) -> None:
+        from .frames import default_camera
+
+        self.sim = sim
+        scene: Scene = sim.scene
+        s = scene.simulation
+        self.scene = scene
+        self.frame_dt = 1.0 / s.frames_per_sec
+        self.base = sim.system  # the scene's own step: the damping rate is fixed there
+        self.order = ORDER[sim.integrator, s.model]
+        self.since_check = 0
+        self.skip_passes = True  # False: every pass on every step (pipeline.reach)
+        self.watched = np.zeros(2, dtype=np.uint8)  # the premises armed (pipeline.reach)
+        self.armed_at = -REARM_EVERY
+        self.tolerance = float(s.tolerance_px)
+        self.camera = default_camera(scene, sim.model.x0.T, scene.render.width,
+                                     scene.render.height)
+        #: the fewest stable steps per frame; the error estimate's coarse run takes no fewer
+        self.floor = (math.ceil(self.frame_dt / (STABILITY_MARGIN * sim.dt_max))
+                      if sim.step_limited and math.isfinite(sim.dt_max) else 1)
+        self.n_min = max(2, math.ceil(COARSE_RATIO * self.floor))
+        self.n_max = max(64 * self.n_min, 16 * s.steps_per_frame)
+        #: the classic model's step count is part of the model (its stretch limit acts once
+        #: per step): kept as the file says; the FEM's is chosen by error control
+        self.adaptive = s.model != "classic"
+        if not self.adaptive:
+            self.n_min = self.n_max = max(s.steps_per_frame, self.floor)
+        self.n = max(self.n_min, s.steps_per_frame)
+        self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
+        self.safety = SAFETY[s.model]
+        gamma = -math.log(1.0 - self.base.damping) / self.base.dt if self.base.damping else 0.0
+        #: how long a velocity error lasts: the drag's time constant, within [frame, 1 s]
+        self.persist = min(1.0, max(self.frame_dt, 1.0 / gamma if gamma > 0 else 1.0))
+        self.motion: list[float] = []  # the latest frames' largest point motion (px)
+        self.history: list[np.ndarray] = []  # and their positions (N, 3)
+        self.state_dt = self.base.dt
+        self.frame = 0
+        self.quiet = 0
+        self.asleep = False
+        self.budget = budget_for(0.0, self.base.thickness)
+        self.steps_used: list[int] = []  # accepted steps per simulated frame
+        self.slept = 0
+        self.rejected = 0
+        self.steps_total = 0  # every step taken, estimates and redone frames included
+        self.last_error_px = 0.0
+        self._started = False
+
+    # --- the system at n steps per frame ---------------------------------------------------
+    def system_for(self, n: int):
+        dt = self.frame_dt / n
+        damping = 1.0 - (1.0 - self.base.damping) ** (dt / self.base.dt)
+        return self.sim.system._replace(dt=dt, damping=damping, steps_per_frame=n)
+
+    def _acceleration(self, system, t: float, v: np.ndarray) -> np.ndarray:
+        state = self.sim._state
+        force = np.zeros_like(state.x)
+        total_force(state.x, v, t, system, force)
+        a = force / system.mass
+        a[:, system.pinned != 0] = 0.0
+        return a
+
+    def _set_step(self, system, t: float) -> None:
+        """Give the Verlet state the step of `system`, keeping the velocity at x: with a = F/m
+        at x, v = (x - x_last) / dt_old + a dt_old / 2 and x_last = x - v dt + a dt^2 / 2
+        (exact for constant acceleration; the Taylor start from rest on the first frame).
+        Only the FEM's step changes: the classic model's stretch limit is not in F."""
+        state = self.sim._state
+        if self.sim.integrator != "verlet":
+            self.state_dt = system.dt
+            self._started = True
+            return
+        old, new = self.state_dt, system.dt
+        if self._started and old == new:
+            return
+        v = (state.x - state.last) / old if self._started else np.zeros_like(state.x)
+        a = self._acceleration(system, t, v)
+        if self._started:
+            v += 0.5 * old * a
+        free = system.pinned == 0
+        state.last[:, free] = (state.x - v * new + 0.5 * new * new * a)[:, free]
+        self.state_dt = new
+        self._started = True
+
+    # --- state snapshots -----------------------------------------------------------------
+    def _save(self) -> dict:
+        state = self.sim._state
+        saved = {k: v.copy() for k, v in vars(state).items() if isinstance(v, np.ndarray)}
+        reach = self.sim.system.reach
+        saved["_reach"] = (reach.armed.copy(), reach.self_on.copy(),
+                           self.sim.system.colliders.active.copy())
+        saved["_dt"] = (self.state_dt, self._started)
+        return saved
+
+    def _restore(self, saved: dict) -> None:
+        state = self.sim._state
+        for k, v in saved.items():
+            if not k.startswith("_"):
+                np.copyto(getattr(state, k), v)
+        reach = self.sim.system.reach
+        armed, self_on, active = saved["_reach"]
+        reach.armed[:], reach.self_on[:] = armed, self_on
+        self.sim.system.colliders.active[:] = active
+        self.state_dt, self._started = saved["_dt"]
+
+    def _run(self, n: int) -> bool:
+        """Advance the state over the frame in n steps; False if the guard tripped."""
+        system = self.system_for(n)
+        t0 = self.frame * self.frame_dt
+        self._set_step(system, t0)
+        done, kinetic, bound = self.sim._state.advance(system, n, self.frame * n)
+        self.steps_total += done
+        self._last_guard = (kinetic, bound, done, n)
+        return done == n and kinetic <= bound and np.all(np.isfinite(self.sim._state.x))
+
+    # --- one frame -------------------------------------------------------------------------
+    def _estimate(self, n: int) -> tuple[bool, float]:
+        """Run the frame with m = max(n // 2, floor) steps, restore, run it with n (kept):
+        (both passed the guard, estimated error of the n-step result in pixels). The error
+        compares where each result would put the points `persist` seconds later at its
+        velocity: a velocity error shows for as long as the drag lets it last."""
+        saved = self._save()
+        m = max(n // 2, self.floor)
+        ok = self._run(m)
+        coarse = self._ahead(m)
+        self._restore(saved)
+        ok = self._run(n) and ok
+        error = screen_distance(self.camera, self._ahead(n), coarse)
+        return ok, error / ((n / m) ** self.order - 1.0)
+
+    def _ahead(self, n: int) -> np.ndarray:
+        """Positions (N, 3) `persist` seconds ahead at the state's velocity at x."""
+        state, system = self.sim._state, self.system_for(n)
+        t = (self.frame + 1) * self.frame_dt
+        v = state.velocity(system)
+        if self.sim.integrator == "verlet":  # (x - x_last) / dt lags by half a step
+            v = v + 0.5 * system.dt * self._acceleration(system, t, v)
+        return (state.x + v * self.persist).T
+
+    def _arm_passes(self) -> None:
+        """Arm pipeline.reach when a premise it watched broke, or every REARM_EVERY frames
+        (to find passes that can no longer act)."""
+        system = self.sim.system
+        reach = system.reach
+        broke = bool(np.any(self.watched & (reach.armed == 0)))
+        if not self.skip_passes or not (broke or self.frame - self.armed_at >= REARM_EVERY):
+            return
+        new = arm(reach, system.colliders.active, self.sim._state.x, self.scene,
+                  system.thickness, *self.budget, system.self_collision)
+        self.sim.system = system._replace(reach=new)
+        self.watched = new.armed.copy()
+        self.armed_at = self.frame
+
+    def advance_frame(self) -> None:
+        """Advance one output frame (DivergenceError when no step count up to the maximum
+        passes the guard)."""
+        t0 = self.frame * self.frame_dt
+        if self.asleep:
+            wake = wake_time(self.scene, t0)
+            if wake is None or wake >= t0 + self.frame_dt:
+                self.frame += 1
+                self.slept += 1
+                return
+            self.asleep = False
+            self.quiet = 0
+            self.check_every = 1  # check the first frame awake
+        self._arm_passes()
+        start = self.sim._state.x.T.copy()
+        target = self.safety * self.tolerance
+        n = self.n
+        checked = self.adaptive and self.since_check + 1 >= self.check_every
+        redos = 0
+        while True:
+            saved = self._save()
+            if checked:
+                ok, error = self._estimate(n)
+            else:
+                ok, error = self._run(n), self.last_error_px
+            if not ok:
+                self._restore(saved)
+                self.rejected += 1
+                if 2 * n > self.n_max:
+                    self._diverged(n)
+                n, checked = 2 * n, self.adaptive
+                continue
+            if error <= target or redos >= MAX_REDOS or n >= self.n_max:
+                break
+            # too coarse: at most GROWTH times the steps at a time (a large jump in the step
+            # count starts a transient of the stretch limit that itself reads as error)
+            self._restore(saved)
+            self.rejected += 1
+            redos += 1
+            n = min(self.n_max, max(n + 1, math.ceil(n * min(GROWTH, (error / target)
+                                                             ** (1 / self.order)))))
+        self.steps_used.append(n)
+        if checked:
+            self.since_check = 0
+            self.last_error_px = error
+            self.n = self._next_steps(n, error / target)
+            # check less often while far below the target, at once again when near it
+            self.check_every = (min(MAX_CHECK_EVERY, 2 * self.check_every)
+                                if error < 0.25 * target else 1)
+        else:
+            self.since_check += 1
+            self.n = n
+        self.frame += 1
+        self._after_frame(start)
+
+    def _next_steps(self, n: int, ratio: float) -> int:
+        """The next frame's steps from this one's error ratio (error / target): up if above
+        1, down only well below it (hysteresis), by at most GROWTH either way."""
+        if ratio > 1.0:
+            want = math.ceil(n * min(GROWTH, ratio ** (1 / self.order)))
+        elif ratio < 0.25:
+            want = math.floor(n / min(GROWTH, max(1.0, (0.5 / max(ratio, 1e-9))
+                                                  ** (1 / self.order))))
+        else:
+            want = n
+        return int(min(self.n_max, max(self.n_min, want)))
+
+    def _after_frame(self, start: np.ndarray) -> None:
+        x = self.sim._state.x.T
+        moved_m = float(np.max(np.linalg.norm(x - start, axis=1))) if len(x) else 0.0
+        self.budget = budget_for(moved_m, self.sim.system.thickness)
+        # an upper bound in pixels: metres times pixels per metre at the nearest point
+        self.motion.append(moved_m / metres_per_pixel(self.camera, x))
+        window = 2 * max(1, round(SLEEP_TIME / self.frame_dt / 2))
+        self.history.append(x.copy())
+        del self.motion[:-window], self.history[:-window - 1]
+        t = self.frame * self.frame_dt
+        if self._at_rest(window) and wake_time(self.scene, t) != t:
+            self.asleep = True
+            self.motion.clear()
+            self.history.clear()
+
+    def _at_rest(self, window: int) -> bool:
+        """The last `window` frames were quiet (no point moved SLEEP_FRACTION of the
+        tolerance in a frame) and the net drift they show, extrapolated, stays below
+        SLEEP_DRIFT of the tolerance: with d1, d2 the largest net displacements over the
+        window's two halves, d2 r / (1 - r) for a decay r = d2 / d1 < 1 per half window,
+        else d2 times the halves in SLEEP_HORIZON. Jitter in place has no net drift; a swing
+        through a turning point moves more in one half than it decays."""
+        if len(self.history) < window + 1 or max(self.motion) >= SLEEP_FRACTION * self.tolerance:
+            return False
+        first, mid, last = self.history[0], self.history[window // 2], self.history[-1]
+        scale = 1.0 / metres_per_pixel(self.camera, last)
+        d1 = float(np.max(np.linalg.norm(mid - first, axis=1))) * scale
+        d2 = float(np.max(np.linalg.norm(last - mid, axis=1))) * scale
+        if d2 < d1:
+            remaining = d2 * (d2 / d1) / (1.0 - d2 / d1)
+        else:
+            remaining = d2 * SLEEP_HORIZON / (window // 2 * self.frame_dt)
+        return remaining < SLEEP_DRIFT * self.tolerance
+
+    def _diverged(self, n: int) -> None:
+        from .simulation import DivergenceError
+
+        kinetic, bound, done, steps = self._last_guard
+        raise DivergenceError(
+            f"simulation diverged at frame {self.frame + 1} (t = {self.frame * self.frame_dt:.4f}"
+            f" s) under fidelity auto: the divergence guard rejected {n} steps per frame "
+            f"(step {done} of {steps}: kinetic energy {kinetic:.4g} J, bound {bound:.4g} J), "
+            f"the most auto allows ({self.n_max}); the scene is unstable at any step: check "
+            "cloth.ks / cloth.fem and the colliders")
+
+    # --- reporting -------------------------------------------------------------------------
+    @property
+    def skipped_collider_steps(self) -> int:
+        """Steps on which at least one collider was skipped."""
+        return int(self.sim.system.reach.counts[2])
+
+    def summary(self) -> dict:
+        """What was used: steps per frame min / median / max (simulated frames), frames
+        slept, frames redone, steps taken in all, self-collision passes run."""
+        used = self.steps_used or [0]
+        counts = self.sim.system.reach.counts
+        return {"steps_per_frame_min": int(min(used)), "steps_per_frame_median":
+                float(np.median(used)), "steps_per_frame_max": int(max(used)),
+                "frames_simulated": len(self.steps_used), "frames_slept": self.slept,
+                "frames_redone": self.rejected, "steps_total": self.steps_total,
+                "self_collision_passes": int(counts[1]) if self.sim.system.self_collision else 0,
+                "steps_with_a_collider_skipped": int(counts[2])}
+
+    def summary_text(self) -> str:
+        s = self.summary()
+        return (f"auto: steps/frame {s['steps_per_frame_min']}/{s['steps_per_frame_median']:g}/"
+                f"{s['steps_per_frame_max']} (min/median/max), {s['frames_slept']} frames slept, "
+                f"{s['frames_redone']} redone, {s['steps_total']} steps in all, "
+                f"{s['self_collision_passes']} self-collision passes, colliders skipped on "
+                f"{s['steps_with_a_collider_skipped']} steps")
+
+
+def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:
+    """The cheaper of Verlet at its stability floor and implicit Euler at the steps the file
+    gives (the accuracy its author found enough: implicit Euler has no floor, but it is first
+    order and damps, and needs at least as many steps for the same error), with why."""
+    sim = scene.simulation
+    frame_dt = 1.0 / sim.frames_per_sec
+    floor = (max(2, math.ceil(COARSE_RATIO * math.ceil(frame_dt / (STABILITY_MARGIN * dt_max))))
+             if math.isfinite(dt_max) else 2)
+    implicit = IMPLICIT_COST[sim.model] * sim.steps_per_frame
+    why = (f"Verlet needs >= {floor} steps per frame for stability (dt_max {dt_max:.3g} s); "
+           f"implicit Euler at the file's {sim.steps_per_frame} would cost about "
+           f"{implicit:.0f} Verlet steps per frame")
+    return ("implicit-euler" if implicit < floor else "verlet"), [why]
+
+
+def make_plan(sim) -> Plan:
+    """The plan of a Simulation (auto or exact)."""
+    scene = sim.scene
+    s = scene.simulation
+    auto = sim.stepper is not None
+    points = sim.model.x0.T
+    colliders = []
+    for c, obj in enumerate(scene.colliders):
+        name = f"{type(obj).__name__.lower()} {c}"
+        if not auto:
+            status = "on every step"
+        elif obj.keyframes:
+            status = "keyframed: on every step"
+        else:
+            from .reach import clearance
+
+            gap = clearance(obj, points)
+            status = (f"{gap:.3g} m from the cloth at t = 0: skipped while no point can reach it "
+                      "(checked every step)" if gap > 0 else
+                      "touching the cloth at t = 0: on while it can act")
+        colliders.append({"name": name, "status": status})
+    if not sim.system.self_collision:
+        self_collision = "off" + (" (horizontal cloth)" if s.self_collision == "auto" else "")
+    elif auto:
+        self_collision = ("on, skipped while no two points can come within 2 x thickness "
+                          f"({2 * scene.cloth.thickness:g} m; checked every step)")
+    else:
+        self_collision = "on every step"
+    plan = Plan(fidelity=s.fidelity, integrator=sim.integrator,
+                steps_per_frame_exact=s.steps_per_frame, steps_per_frame_min=s.steps_per_frame,
+                steps_per_frame_start=s.steps_per_frame, steps_per_frame_max=s.steps_per_frame,
+                tolerance_px=None, metres_per_px=None, image_height=scene.render.height,
+                stability_limit_s=sim.dt_max, self_collision=self_collision,
+                colliders=colliders)
+    if auto:
+        st = sim.stepper
+        plan.steps_per_frame_min, plan.steps_per_frame_start = st.n_min, st.n
+        plan.steps_per_frame_max, plan.tolerance_px = st.n_max, st.tolerance
+        plan.metres_per_px = metres_per_pixel(st.camera, points)
+        plan.predicted_cost = (CHECK_COST if st.adaptive else 1.0) * st.n / s.steps_per_frame
+        wake = wake_time(scene, 0.0)
+        plan.sleeps = ("never: the wind varies in time" if scene.wind is not None else
+                       "when at rest for " f"{SLEEP_TIME:g} s" + (
+                           "" if wake is None else " outside the keyframed motion"))
+        plan.reasons = sim.integrator_reasons
+    return plan

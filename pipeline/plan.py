@@ -1,0 +1,50 @@
+"""`render plan SCENE.json [--fidelity auto] [--tolerance PX] [--json]`: what will be
+modelled and why, before running (pipeline.fidelity.Plan)."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+
+from . import cli as _cli
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _cli._Parser(prog=f"{_cli.PROG} plan", allow_abbrev=False,
+                     description="Say what the simulation of SCENE.json will model and why: "
+                                 "integrator, steps per frame, which colliders can act, "
+                                 "whether self-collision can act, sleeping, the predicted "
+                                 "cost against fidelity exact.")
+    p.add_argument("scene", metavar="SCENE.json")
+    p.add_argument("--fidelity", choices=("exact", "auto"))
+    p.add_argument("--tolerance", type=_cli._positive_float("tolerance"), metavar="PX")
+    p.add_argument("--size", type=_cli._size, metavar="WxH",
+                   help="the image the tolerance is measured in (default: the scene's)")
+    p.add_argument("--set", dest="overrides", action="append", default=[],
+                   type=_cli._override, metavar="KEY=VALUE")
+    p.add_argument("--json", action="store_true", help="the plan as one JSON object")
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    err = _cli._Errors(sys.stderr, quiet=False, debug=False)
+    try:
+        args = build_parser().parse_args(argv)
+    except _cli.UsageError as exc:
+        err.say(str(exc))
+        err.say("try 'render plan --help'")
+        return 2
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+    from .scene import load_scene
+    from .simulation import Simulation
+
+    scene = load_scene(args.scene, list(args.overrides) + _cli.fidelity_overrides(args))
+    plan = Simulation(scene).plan
+    if args.json:
+        print(json.dumps(plan.as_dict(), indent=1))
+    else:
+        print("\n".join(plan.lines()))
+    return 0
