@@ -50,6 +50,7 @@ import numpy as np
 from .forces import elastic_energy, total_force
 from .integrators import state_class
 from .model import DIRECTION_TYPE, build_model
+from .outputs import atomic_file
 from .scene import INTEGRATORS, MODELS, FemMaterial, Scene, load_scene
 from .system import System, build_system, stability_limit
 
@@ -405,7 +406,7 @@ def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
 # --- charts ---------------------------------------------------------------------------------
 
 def write_csv(path: Path, rows: list[dict]) -> None:
-    with path.open("w", newline="") as fh:
+    with atomic_file(path) as tmp, tmp.open("w", newline="") as fh:
         fields = list(dict.fromkeys(k for r in rows for k in r))  # auto rows add a column
         writer = csv.DictWriter(fh, fieldnames=fields)
         writer.writeheader()
@@ -430,7 +431,8 @@ def _panels(count: int, sharex: bool = True):
 
 def _save(plt, fig, stem: Path) -> None:
     for ext in ("png", "svg"):
-        fig.savefig(stem.with_suffix("." + ext), dpi=130)
+        with atomic_file(stem.with_suffix("." + ext)) as tmp:
+            fig.savefig(tmp, dpi=130, format=ext)
     plt.close(fig)
 
 
@@ -558,7 +560,18 @@ def main(argv=None) -> int:
 
 def _bench(args) -> int:
     out = Path(args.out)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
+    try:
+        return _bench_into(args, out)
+    except BaseException:
+        if created and not any(out.iterdir()):  # stopped before writing: leave no trace
+            out.rmdir()
+        raise
+
+
+def _bench_into(args, out: Path) -> int:
+    """The benchmark proper; every file is written atomically (outputs.atomic_file)."""
     data = scene_data(args.scene)
     name = Path(args.scene).stem
     c = data["cloth"]
@@ -587,7 +600,8 @@ def _bench(args) -> int:
             rows += model_rows
         stem = out / f"{name}_work_precision"
         write_csv(stem.with_suffix(".csv"), rows)
-        (out / f"{name}_reference.json").write_text(json.dumps(infos, indent=2) + "\n")
+        with atomic_file(out / f"{name}_reference.json") as tmp:
+            tmp.write_text(json.dumps(infos, indent=2) + "\n")
         chart_work_precision(rows, infos, f"{name} ({size}, damping {c['damping']}%): error "
                              f"at t = {args.time:g} s vs {REFERENCE} at dt/{REFERENCE_FACTOR}",
                              stem, subtitles)

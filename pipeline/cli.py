@@ -3,8 +3,9 @@
     render SCENE.json --shader phong --out cloth.gif
 
 `main(argv)` returns the exit status: 0 ok, 1 internal failure (including a diverging
-simulation), 2 bad input (scene, flags, paths, missing texture), 3 `--check` beyond
-tolerance, 130 interrupted. Errors are one or two lines on stderr prefixed `render: `;
+simulation, and an output that cannot be written: full disk, I/O error), 2 bad input
+(scene, flags, paths, missing texture), 3 `--check` beyond tolerance, 130 / 143 / 129
+stopped by SIGINT / SIGTERM / SIGHUP (nothing left behind). Errors are one or two lines on stderr prefixed `render: `;
 `--debug` adds the traceback. See docs/cli.md.
 """
 from __future__ import annotations
@@ -24,8 +25,8 @@ from typing import Sequence
 
 import numpy as np
 
-from . import outputs
-from .outputs import OutputError
+from . import outputs, signals
+from .outputs import OutputError, WriteError
 from .progress import bar, progress_enabled
 
 PROG = "render"
@@ -138,8 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
             "Output type from --out: .gif, .mp4, .png (one frame), or a folder (a path ending "
             "in '/' or an existing folder: numbered PNGs). Output frame k shows the simulated "
             "state at t = k / fps (the simulator frame nearest to t).",
-            "Exit status: 0 ok, 1 internal failure or diverging simulation, 2 bad input, "
-            "3 --check beyond tolerance, 130 interrupted.",
+            "Exit status: 0 ok, 1 internal failure, diverging simulation or an output that "
+            "cannot be written (full disk), 2 bad input, 3 --check beyond tolerance, "
+            "130 / 143 / 129 stopped by SIGINT / SIGTERM / SIGHUP (nothing is left behind).",
             "Subcommands: 'render report SCENE.json --out report.html' compares shaders and "
             "parameter sweeps side by side (also reached with --shader all or an .html "
             "output; see 'render report --help'); 'render bench SCENE.json --out DIR' charts "
@@ -308,7 +310,10 @@ class _Errors:
         self.debug = debug
 
     def say(self, msg: str) -> None:
-        print(f"{PROG}: {msg}", file=self.stream, flush=True)
+        try:
+            print(f"{PROG}: {msg}", file=self.stream, flush=True)
+        except OSError:  # stderr gone (its terminal hung up): the exit status remains
+            pass
 
     def warn(self, msg: str) -> None:
         if not self.quiet:
@@ -635,7 +640,7 @@ def _check(args, err: _Errors, out_w, golden: np.ndarray) -> int:
                 with outputs.PngWriter(diff_path) as dw:
                     dw.add(outputs.diff_image(image, golden))
                 msg += f"; difference image (x8): {diff_path}"
-            except (OSError, OutputError):
+            except (OSError, OutputError, WriteError):
                 pass
         err.say(f"--check {args.check}: {msg}")
         return 3
@@ -672,15 +677,34 @@ def _run_subcommand(name: str, argv: Sequence[str]) -> int:
 
     from .scene import SceneError
 
+    err = _Errors(sys.stderr, quiet=False, debug="--debug" in argv)
     try:
         return importlib.import_module(SUBCOMMANDS[name]).main(list(argv))
     except SceneError as exc:
-        print(f"{PROG}: {_one_line(exc)}", file=sys.stderr)
+        err.say(_one_line(exc))
         return 2
+    except WriteError as exc:
+        err.say(str(exc))
+        return 1
+    except KeyboardInterrupt as exc:
+        err.say(interrupted_message(exc))
+        return signals.exit_status(exc)
+
+
+def interrupted_message(exc: KeyboardInterrupt) -> str:
+    """'interrupted (SIGTERM); no output written'."""
+    name = str(exc) if isinstance(exc, signals.Terminated) else "SIGINT"
+    return f"interrupted ({name}); no output written"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the `render` console script; returns the exit status."""
+    """Entry point of the `render` console script; returns the exit status.
+    SIGINT, SIGTERM and SIGHUP stop it cleanly (pipeline.signals): exit 128 + signal."""
+    with signals.handled():
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     if argv and argv[0] in SUBCOMMANDS:
         return _run_subcommand(argv[0], argv[1:])
@@ -719,10 +743,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(2, f"{exc}\n{PROG}: try 'render --help'")
     except (SceneError, OutputError, TextureError) as exc:
         return fail(2, _one_line(exc))
-    except DivergenceError as exc:
+    except (DivergenceError, WriteError) as exc:
         return fail(1, _one_line(exc))
-    except KeyboardInterrupt:
-        return fail(130, "interrupted; no output written")
+    except KeyboardInterrupt as exc:
+        return fail(signals.exit_status(exc), interrupted_message(exc))
     except MemoryError:
         return fail(1, "out of memory; try a smaller --size, --aa or fewer frames")
     except Exception as exc:  # noqa: BLE001 - the last line of defence

@@ -19,12 +19,16 @@ Life cycle, for every writer:
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import io
 import math
 import os
 import re
 import shutil
+import subprocess
 import tempfile
+import threading
 from fractions import Fraction
 from pathlib import Path
 from typing import Sequence
@@ -33,6 +37,8 @@ import numpy as np
 
 __all__ = [
     "OutputError",
+    "WriteError",
+    "atomic_file",
     "OUTPUT_KINDS",
     "classify_output",
     "gif_delays_cs",
@@ -55,6 +61,47 @@ GIF_MAX_FPS = 50.0
 
 class OutputError(ValueError):
     """A bad output path or option (exit status 2). `str(err)` is a one-line message."""
+
+
+class WriteError(Exception):
+    """An output could not be written (full disk, I/O error...; exit status 1).
+
+    `str(err)` is one line naming the reason and the file the user asked for:
+    "no space left on device writing /abs/x.gif"."""
+
+    def __init__(self, target: str | os.PathLike, reason: str):
+        self.target = Path(os.path.abspath(os.fspath(target)))
+        self.reason = reason
+        super().__init__(f"{reason} writing {self.target}")
+
+    @classmethod
+    def from_oserror(cls, target: str | os.PathLike, exc: OSError) -> "WriteError":
+        reason = exc.strerror or (os.strerror(exc.errno) if exc.errno else str(exc)) or "error"
+        return cls(target, reason[:1].lower() + reason[1:])
+
+
+@contextlib.contextmanager
+def _writing(target: Path):
+    """Turn an OSError raised while writing `target` (or its temporary) into a WriteError."""
+    try:
+        yield
+    except OSError as exc:
+        raise WriteError.from_oserror(target, exc) from exc
+
+
+@contextlib.contextmanager
+def atomic_file(target: str | os.PathLike):
+    """`with atomic_file("x.csv") as tmp: write tmp` - written beside the target, renamed
+    into place at the end, removed on any error or interrupt; OSError -> WriteError."""
+    target = Path(target)
+    tmp = _tempfile_beside(target)
+    try:
+        with _writing(target):
+            yield tmp
+            os.replace(tmp, target)
+    except BaseException:
+        _remove(tmp)
+        raise
 
 
 # --------------------------------------------------------------------------- paths
@@ -175,23 +222,32 @@ class _Atomic:
         self.count = 0
         self.closed = False
 
+    def _add(self, *items) -> None:  # write one frame; subclasses override
+        raise NotImplementedError
+
     def _finish(self) -> None:  # write trailers; subclasses override
         pass
 
     def _close_handles(self) -> None:  # release files/processes; subclasses override
         pass
 
+    def add(self, *items) -> None:
+        """Add one frame; an OSError becomes a WriteError naming the target."""
+        with _writing(self.target):
+            self._add(*items)
+
     def commit(self) -> Path:
         if self.closed:
             raise RuntimeError("writer already closed")
         try:
-            self._finish()
-            self._close_handles()
-            assert self.tmp is not None
-            if self.is_dir:
-                _commit_dir(self.tmp, self.target)
-            else:
-                os.replace(self.tmp, self.target)
+            with _writing(self.target):
+                self._finish()
+                self._close_handles()
+                assert self.tmp is not None
+                if self.is_dir:
+                    _commit_dir(self.tmp, self.target)
+                else:
+                    os.replace(self.tmp, self.target)
             self.tmp = None
         except BaseException:
             self.abort()
@@ -258,7 +314,7 @@ class PngWriter(_Atomic):
         super().__init__(target)
         self.image: np.ndarray | None = None
 
-    def add(self, image: np.ndarray) -> None:
+    def _add(self, image: np.ndarray) -> None:
         self.image = _check_image(image, None).copy()
         self.count += 1
 
@@ -278,7 +334,7 @@ class FolderWriter(_Atomic):
         self.shape = None
         self.compress_level = compress_level
 
-    def add(self, image: np.ndarray) -> None:
+    def _add(self, image: np.ndarray) -> None:
         image = _check_image(image, self.shape)
         self.shape = image.shape[:2]
         write_png(self.tmp / (FRAME_NAME.format(self.count) + ".png"), image, self.compress_level)
@@ -289,7 +345,8 @@ class FolderWriter(_Atomic):
 
 
 class Mp4Writer(_Atomic):
-    """H.264 / yuv420p MP4 through imageio-ffmpeg, frames streamed to ffmpeg's stdin.
+    """H.264 / yuv420p MP4, frames streamed to the stdin of imageio-ffmpeg's ffmpeg, run as
+    our own child process: `abort` kills it and waits for it.
 
     yuv420p needs even width and height: an odd size is padded by one row/column that
     repeats the last one (edge padding), never rescaled. `padded` tells whether it was.
@@ -302,7 +359,7 @@ class Mp4Writer(_Atomic):
         self.fps = fps
         self.crf = crf
         self.preset = preset
-        self._gen = None
+        self._proc: subprocess.Popen | None = None
         self.shape = None
         self.padded_shape = None
 
@@ -315,43 +372,76 @@ class Mp4Writer(_Atomic):
 
         ph, pw = h + (h & 1), w + (w & 1)
         self.padded_shape = (ph, pw)
-        self._gen = imageio_ffmpeg.write_frames(
-            str(self.tmp),
-            (pw, ph),
-            fps=Fraction(self.fps).limit_denominator(100000),
-            codec="libx264",
-            pix_fmt_in="rgb24",
-            pix_fmt_out="yuv420p",
-            quality=None,
-            macro_block_size=1,  # never let imageio-ffmpeg rescale
-            ffmpeg_log_level="error",
-            output_params=["-crf", str(self.crf), "-preset", self.preset,
-                           "-movflags", "+faststart", "-f", "mp4"],
-        )
-        self._gen.send(None)  # start ffmpeg
+        fps = Fraction(self.fps).limit_denominator(100000)
+        cmd = [imageio_ffmpeg.get_ffmpeg_exe(), "-y", "-f", "rawvideo", "-vcodec", "rawvideo",
+               "-s", f"{pw}x{ph}", "-pix_fmt", "rgb24", "-r", str(fps), "-i", "-",
+               "-vcodec", "libx264", "-pix_fmt", "yuv420p", "-v", "error",
+               "-crf", str(self.crf), "-preset", self.preset, "-movflags", "+faststart",
+               "-f", "mp4", str(self.tmp)]
+        # Its own session: a Ctrl-C at the terminal reaches only us, and we stop it.
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.PIPE, start_new_session=True)
+        self._stderr = []
+        self._reader = threading.Thread(target=self._read_stderr, name="ffmpeg-stderr",
+                                        daemon=True)
+        self._reader.start()
 
-    def add(self, image: np.ndarray) -> None:
+    def _read_stderr(self) -> None:
+        for line in self._proc.stderr:
+            self._stderr.append(line.decode("utf-8", "replace").strip())
+
+    def _failed(self, exc: BaseException | None) -> OSError:
+        """The error to report when ffmpeg stopped taking frames or failed: its reason
+        when ffmpeg names a system error (e.g. no space left on device)."""
+        self._proc.wait()
+        self._reader.join()
+        text = " ".join(self._stderr)
+        for code in (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.EIO,
+                     errno.EACCES):
+            if os.strerror(code) in text:
+                return OSError(code, os.strerror(code))
+        last = self._stderr[-1] if self._stderr else (str(exc) if exc else "")
+        return OSError(errno.EIO, f"ffmpeg failed (exit status {self._proc.returncode}"
+                                  f"{': ' + last if last else ''})")
+
+    def _add(self, image: np.ndarray) -> None:
         image = _check_image(image, self.shape)
-        if self._gen is None:
+        if self._proc is None:
             self.shape = image.shape[:2]
             self._start(*self.shape)
         if self.padded:
             ph, pw = self.padded_shape
             image = np.pad(image, ((0, ph - image.shape[0]), (0, pw - image.shape[1]), (0, 0)),
                            mode="edge")
-        self._gen.send(image)
+        try:
+            self._proc.stdin.write(np.ascontiguousarray(image).tobytes())
+        except BrokenPipeError as exc:
+            raise self._failed(exc) from None
         self.count += 1
 
     def _finish(self) -> None:
-        if self._gen is None:
+        if self._proc is None:
             raise RuntimeError("no frame was rendered")
-        gen, self._gen = self._gen, None
-        gen.close()  # waits for ffmpeg to finish the file
+        try:
+            self._proc.stdin.close()  # ffmpeg finishes the file and exits
+        except BrokenPipeError:
+            pass
+        if self._proc.wait() != 0:
+            raise self._failed(None)
+        self._reader.join()
+        self._proc = None
 
     def _close_handles(self) -> None:
-        gen, self._gen = self._gen, None
-        if gen is not None:
-            gen.close()
+        """On abort: kill ffmpeg and wait for it (no process is left behind)."""
+        proc, self._proc = self._proc, None
+        if proc is not None:
+            proc.kill()
+            proc.wait()
+            for pipe in (proc.stdin, proc.stderr):
+                try:
+                    pipe.close()
+                except OSError:
+                    pass
 
 
 # --------------------------------------------------------------------------- GIF
@@ -509,7 +599,7 @@ class GifWriter(_Atomic):
         idx = (np.arange(self.SAMPLE_PER_FRAME) * step).astype(np.int64)
         return flat[idx]
 
-    def add(self, image: np.ndarray) -> None:
+    def _add(self, image: np.ndarray) -> None:
         image = _check_image(image, self.shape)
         if self.shape is None:
             self.shape = image.shape[:2]
@@ -641,7 +731,7 @@ class ObjWriter(_Atomic):
 
     is_dir = True
 
-    def add(self, meshes: Sequence, names: Sequence[str]) -> None:
+    def _add(self, meshes: Sequence, names: Sequence[str]) -> None:
         write_obj(self.tmp / (FRAME_NAME.format(self.count) + ".obj"), meshes, names)
         self.count += 1
 
@@ -659,7 +749,7 @@ class NpzWriter(_Atomic):
         super().__init__(target)
         self.positions: list[np.ndarray] = []
 
-    def add(self, positions: np.ndarray) -> None:
+    def _add(self, positions: np.ndarray) -> None:
         self.positions.append(np.array(positions, np.float64, copy=True).reshape(-1, 3))
         self.count += 1
 

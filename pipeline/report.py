@@ -11,7 +11,7 @@ Two kinds of report:
   chosen shader. Grid: one row per time, one column per shader.
 * Sweep report (one or more --sweep KEY=V1,V2,...): one scene variant per value (the
   product of the sweeps), each simulated once, in parallel processes
-  (ProcessPoolExecutor, --jobs, default os.cpu_count()), rendered with one shader
+  (a multiprocessing pool, --jobs, default os.cpu_count()), rendered with one shader
   (--shader, default the scene's render.shader: phong). One sweep: rows are its values,
   columns the times (default: only the end time). Two sweeps: rows the first, columns the
   second, one grid per time. More sweeps: one such grid per combination of the values of
@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import argparse
 import base64
-import concurrent.futures
 import html
 import io
 import itertools
@@ -56,7 +55,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from . import cli as _cli
-from . import outputs
+from . import outputs, signals
 from .outputs import OutputError
 from .progress import bar, progress_enabled
 
@@ -438,6 +437,12 @@ def _simulate(scene_path, overrides, frames, on_frame) -> VariantRun:
     return VariantRun(positions, error, msgs, time.perf_counter() - t0)
 
 
+def _simulate_indexed(task: tuple) -> tuple[int, VariantRun]:
+    """simulate_variant in a pool worker, keeping the variant's index with the result."""
+    index, *args = task
+    return index, simulate_variant(*args)
+
+
 def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
                     ) -> list[VariantRun]:
     """Every variant's simulation: in this process when there is one variant or one job,
@@ -460,18 +465,18 @@ def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
     threads = max(1, (os.cpu_count() or 1) // workers)
     ctx = multiprocessing.get_context("spawn")  # fork after numba threads started is unsafe
     runs: list[VariantRun | None] = [None] * n
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-        futs = {pool.submit(simulate_variant, plan.scene_path,
-                            plan.overrides + list(v.overrides), frames, threads): v.index
-                for v in plan.variants}
-        try:
-            for fut in concurrent.futures.as_completed(futs):
-                runs[futs[fut]] = fut.result()
-                if progress is not None:
-                    progress.update(1)
-        except BaseException:
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
+    tasks = [(v.index, plan.scene_path, plan.overrides + list(v.overrides), frames, threads)
+             for v in plan.variants]
+    pool = ctx.Pool(workers)
+    try:
+        for index, result in pool.imap_unordered(_simulate_indexed, tasks):
+            runs[index] = result
+            if progress is not None:
+                progress.update(1)
+        pool.close()
+    finally:
+        pool.terminate()  # on an error or a signal: no worker is left running
+        pool.join()
     return runs  # type: ignore[return-value]
 
 
@@ -964,7 +969,7 @@ class TextWriter(outputs._Atomic):  # noqa: SLF001 - the project's atomic-write 
         super().__init__(target)
         self.text: str | None = None
 
-    def add(self, text: str) -> None:
+    def _add(self, text: str) -> None:
         self.text = text
         self.count += 1
 
@@ -1063,8 +1068,10 @@ def run(args) -> int:
         return fail(2, f"{exc}\n{_cli.PROG}: try 'render report --help'")
     except (SceneError, OutputError, TextureError) as exc:
         return fail(2, _cli._one_line(exc))
-    except KeyboardInterrupt:
-        return fail(130, "interrupted; no output written")
+    except outputs.WriteError as exc:
+        return fail(1, str(exc))
+    except KeyboardInterrupt as exc:
+        return fail(signals.exit_status(exc), _cli.interrupted_message(exc))
     except MemoryError:
         return fail(1, "out of memory; try a smaller --size or fewer shaders or times")
     except Exception as exc:  # noqa: BLE001 - the last line of defence

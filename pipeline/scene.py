@@ -682,9 +682,15 @@ def _collider_items(data: dict):
                 yield ([key, i] if many else [key]), obj
 
 
+#: The faces a `render.cubemap` folder holds (shading.textures.CUBE_FACES; not imported
+#: from there: this module stays light).
+CUBE_FACES = ("posx", "negx", "posy", "negy", "posz", "negz")
+
+
 def _check_files(data: dict, base_dir: Path) -> None:
-    """Files the scene names must exist and make sense: mesh colliders (readable by trimesh,
-    watertight when solid) and an image mass map."""
+    """Every file the scene names must exist and be readable, whatever the shader: mesh
+    colliders (readable by trimesh, watertight when solid), an image mass map, the render
+    texture and height map (images) and the cube map (a folder of six face images)."""
     for path, obj in _collider_items(data):
         if path[0] == "mesh":
             _check_mesh_file(path + ["path"], _resolve_path(base_dir, obj["path"]),
@@ -692,6 +698,25 @@ def _check_files(data: dict, base_dir: Path) -> None:
     mass_map = data["cloth"].get("mass_map")
     if isinstance(mass_map, str):
         _check_image_file(["cloth", "mass_map"], _resolve_path(base_dir, mass_map))
+    render = data.get("render", {})
+    for key in ("texture", "height_map"):
+        if key in render:
+            _check_image_file(["render", key], _resolve_path(base_dir, render[key]))
+    if "cubemap" in render:
+        _check_cubemap(["render", "cubemap"], _resolve_path(base_dir, render["cubemap"]))
+
+
+def _check_cubemap(path: list[PathItem], folder: Path) -> None:
+    where = _fmt_path(path)
+    if not folder.is_dir():
+        raise _Problem(path, f"{where}: cube map folder {str(folder)!r} not found (expected a "
+                             f"folder holding {', '.join(f + '.png' for f in CUBE_FACES)})")
+    for face in CUBE_FACES:
+        files = sorted(folder.glob(face + ".*"))
+        if not files:
+            raise _Problem(path, f"{where}: cube map face {face!r} not found in "
+                                 f"{str(folder)!r} (expected {face}.png)")
+        _check_image_file(path, files[0])
 
 
 def _check_mesh_file(path: list[PathItem], file: Path, solid: bool) -> None:

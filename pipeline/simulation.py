@@ -10,6 +10,7 @@ import numpy as np
 
 from .integrators import integrator_module
 from .model import ClothModel, build_model
+from .overlap import resolve_start_inside
 from .scene import Scene, load_scene
 from .system import System, build_system, stability_limit
 
@@ -39,6 +40,7 @@ class Simulation:
     ) -> None:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.model: ClothModel = build_model(self.scene, initial_positions)
+        resolve_start_inside(self.scene, self.model)  # points starting inside a collider
         self.system: System = build_system(self.scene, self.model)
         self.omega_max, self.dt_max = stability_limit(self.model)
         self.integrator = self.scene.simulation.integrator

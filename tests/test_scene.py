@@ -122,11 +122,26 @@ def test_self_collision_auto_and_explicit():
     assert v.simulation.self_collision is False and v.self_collision is False
 
 
-def test_render_paths_resolve_against_the_scene_folder(tmp_path):
+TEXTURES = ROOT / "textures"
+
+
+def _texture_files(folder: Path, *names: str) -> None:
+    """Copies of the packaged texture at folder/name, and the packaged cube map at
+    folder/cube."""
+    import shutil
+
+    for name in names:
+        (folder / name).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(TEXTURES / "cloth.png", folder / name)
+    shutil.copytree(TEXTURES / "cubemap", folder / "cube", dirs_exist_ok=True)
+
+
+def test_render_paths_resolve_against_the_scene_folder(tmp_path, monkeypatch):
     d = raw("plane")
     d["render"] = {"shader": "texture", "texture": "tex/cloth.png",
                    "height_map": str(tmp_path / "abs.png"), "cubemap": "../cube"}
     (tmp_path / "sub").mkdir()
+    _texture_files(tmp_path, "sub/tex/cloth.png", "abs.png", "tex/cloth.png")
     f = tmp_path / "sub" / "scene.json"
     f.write_text(json.dumps(d))
     r = load_scene(f).render
@@ -134,9 +149,30 @@ def test_render_paths_resolve_against_the_scene_folder(tmp_path):
     assert r.height_map == tmp_path / "abs.png"
     assert r.cubemap == tmp_path / "cube"
     assert all(p.is_absolute() for p in (r.texture, r.height_map, r.cubemap))
-    # from a dict: relative to the current directory; existence is not checked here
+    # from a dict: relative to the current directory
+    monkeypatch.chdir(tmp_path / "sub")
     r2 = load_scene(d).render
-    assert r2.texture == Path.cwd() / "tex" / "cloth.png"
+    assert r2.texture == tmp_path / "sub" / "tex" / "cloth.png"
+
+
+@pytest.mark.parametrize("shader", ["phong", "texture", "mirror"])
+@pytest.mark.parametrize("key, value, expected", [
+    ("texture", "nowhere.png", "render.texture: image '{dir}/nowhere.png' not found"),
+    ("height_map", "nowhere.png", "render.height_map: image '{dir}/nowhere.png' not found"),
+    ("texture", "scene.json", "render.texture: cannot read '{dir}/scene.json' as an image"),
+    ("cubemap", "nowhere", "render.cubemap: cube map folder '{dir}/nowhere' not found"),
+    ("cubemap", "half", "render.cubemap: cube map face 'negx' not found in '{dir}/half'"),
+])
+def test_missing_or_unreadable_render_files_fail_at_load(tmp_path, shader, key, value,
+                                                          expected):
+    d = raw("plane")
+    d["render"] = {"shader": shader, key: value}
+    _texture_files(tmp_path, "half/posx.png")
+    f = tmp_path / "scene.json"
+    f.write_text(json.dumps(d))
+    with pytest.raises(SceneError) as e:
+        load_scene(f)
+    assert str(e.value).startswith(f"{f}: " + expected.format(dir=tmp_path))
 
 
 def test_schema_enums_come_from_the_module_tuples(monkeypatch):
@@ -309,11 +345,13 @@ def test_top_level_errors_are_preferred_and_unknown_beats_missing():
 # Overrides
 # --------------------------------------------------------------------------------------
 
-def test_overrides_set_values_of_every_type():
+def test_overrides_set_values_of_every_type(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _texture_files(tmp_path, "my texture.png")
     s = load_scene(SCENES / "sphere.json", [
         "cloth.ks=500", "simulation.self_collision=false", "camera.position=[0,1,3]",
         "camera.target=[0.5,0,0.5]", "render.shader=toon", "sphere.0.radius=0.3",
-        "render.texture=my texture.png", "light.intensity=[1, 2, 3]", "cloth.pinned=[[0,0]]",
+        f"render.texture={tmp_path}/my texture.png", "light.intensity=[1, 2, 3]", "cloth.pinned=[[0,0]]",
     ])
     assert s.cloth.ks == 500.0 and s.simulation.self_collision is False
     assert s.camera.position == (0.0, 1.0, 3.0) and s.render.shader == "toon"
@@ -321,7 +359,9 @@ def test_overrides_set_values_of_every_type():
     assert s.light.intensity == (1.0, 2.0, 3.0) and s.cloth.pinned == ((0, 0),)
 
 
-def test_overrides_index_lists_and_value_may_contain_equals():
+def test_overrides_index_lists_and_value_may_contain_equals(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    _texture_files(tmp_path, "a=b.png")
     d = raw("sphere")
     d["sphere"] = [d["sphere"], {"origin": [0, 0, 0], "radius": 0.1, "friction": 0}]
     s = load_scene(d, ["sphere.1.radius=0.25", "sphere.0.origin.1=0.5", "render.texture=a=b.png"])
@@ -388,7 +428,7 @@ def test_collider_order_follows_the_file(tmp_path):
 
 FULL = raw("two_spheres")
 FULL["cloth"]["pinned"] = [[0, 0], [39, 39]]
-FULL["render"].update({"shader": "bump", "texture": "t.png", "k_a": 0.1, "k_d": [1, 1, 1],
+FULL["render"].update({"shader": "bump", "texture": str(ROOT / "textures" / "cloth.png"), "k_a": 0.1, "k_d": [1, 1, 1],
                        "background": [0.1, 0.1, 0.1]})
 FULL["simulation"].update({"integrator": "verlet", "seed": 3, "gravity": [0, -9.8, 0]})
 load_scene(FULL)  # the base of the mutations is valid

@@ -1,0 +1,57 @@
+"""SIGINT, SIGTERM and SIGHUP as an exception, so that every output is cleaned up.
+
+Inside `handled()`, the first of these signals raises `Terminated` in the main thread
+(a KeyboardInterrupt, so every `except KeyboardInterrupt` / `except BaseException`
+cleanup path runs: writers remove their temporary files, the MP4 encoder is killed, worker
+processes are terminated). Further signals are then ignored until the block ends, so
+the cleanup itself is never cut short. A signal that was ignored when the block began
+(SIGHUP under nohup) stays ignored. The command exits with `exit_status(exc)`:
+128 + the signal number (130 SIGINT, 143 SIGTERM, 129 SIGHUP), as shells report a process
+a signal stopped.
+"""
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(KeyboardInterrupt):
+    """A termination signal arrived; `signum` is its number."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def exit_status(exc: KeyboardInterrupt) -> int:
+    """128 + the signal number; a plain KeyboardInterrupt counts as SIGINT (130)."""
+    return 128 + getattr(exc, "signum", signal.SIGINT)
+
+
+@contextmanager
+def handled() -> Iterator[None]:
+    """Within the block, SIGINT / SIGTERM / SIGHUP raise Terminated once (main thread only;
+    elsewhere, or where signals cannot be set, the block runs unchanged)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    fired = []
+
+    def handler(signum, frame):
+        if fired:  # already stopping: let the cleanup finish
+            return
+        fired.append(signum)
+        raise Terminated(signum)
+
+    # A signal ignored by whoever started us (nohup: SIGHUP) stays ignored.
+    previous = {sig: signal.signal(sig, handler) for sig in HANDLED
+                if signal.getsignal(sig) is not signal.SIG_IGN}
+    try:
+        yield
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)

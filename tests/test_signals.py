@@ -1,0 +1,198 @@
+"""Real signals to a real `render` process, by its pid, at several moments: the exit
+status is 128 + the signal, nothing partial is left in the output folder, and no child
+process (ffmpeg, report workers) outlives it.
+
+The moment is recognised from outside, never from elapsed time: compiling (the first file
+in an empty numba cache), simulating (the output's temporary files exist and the first
+frame went out while the simulation is the slow part), rendering (the first numbered PNG
+in the temporary folder of a large anti-aliased render), encoding (ffmpeg is running).
+"""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = {
+    "cloth": {"width": 1, "height": 1, "num_width_points": 12, "num_height_points": 12,
+              "thickness": 0.0095, "orientation": 0, "damping": 0.2, "density": 150.0,
+              "ks": 5000.0, "enable_structural": True, "enable_shearing": True,
+              "enable_bending": True},
+    "sphere": {"origin": [0.5, 0.2, 0.5], "radius": 0.2, "friction": 0.3},
+    "plane": {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5},
+}
+WAIT = 300  # seconds at most for a moment to come (a first compilation on a busy machine)
+
+pytestmark = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc")
+
+
+def render_cmd() -> list[str]:
+    return [sys.executable, "-c", "import sys; from pipeline.cli import main; "
+            "sys.exit(main())"]
+
+
+def child_env(**extra) -> dict:
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in
+                                                       env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env.update(extra)
+    return env
+
+
+def children(pid: int) -> dict[int, str]:
+    """{pid: command name} of the live processes whose parent is `pid` (from /proc)."""
+    out = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        name = stat[stat.index("(") + 1: stat.rindex(")")]
+        fields = stat[stat.rindex(")") + 2:].split()
+        if int(fields[1]) == pid and fields[0] != "Z":
+            out[int(entry.name)] = name
+    return out
+
+
+def running(pid: int) -> bool:
+    """Alive and not a zombie."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
+
+
+def wait_for(proc: subprocess.Popen, condition, what: str):
+    """Poll `condition` until it returns something true (returned); fail if render exits."""
+    deadline = time.monotonic() + WAIT
+    while not (value := condition()):
+        if proc.poll() is not None:
+            out, err = proc.communicate()
+            pytest.fail(f"render exited ({proc.returncode}) before {what}: {err}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail(f"render never reached: {what}")
+        time.sleep(0.02)
+    return value
+
+
+def temp_files(folder: Path, pattern: str) -> list[Path]:
+    return [p for p in folder.glob(pattern)]
+
+
+@pytest.fixture(scope="module")
+def warm(tmp_path_factory):
+    """One complete run of each output kind, so the kernels are compiled and cached."""
+    d = tmp_path_factory.mktemp("warm")
+    scene = d / "s.json"
+    scene.write_text(json.dumps(SCENE))
+    for out in ("a.gif", "a.mp4", "frames/"):
+        r = subprocess.run(render_cmd() + [str(scene), "--out", f"{d}/{out}", "--size",
+                                           "32x32", "--duration", "0.2", "--aa", "2"],
+                           capture_output=True, text=True, env=child_env(), timeout=900)
+        assert r.returncode == 0, r.stderr
+
+
+def stop(proc: subprocess.Popen, sig: int, out_dir: Path, keep: set[str],
+         seen: dict[int, str] | None = None) -> dict[int, str]:
+    """Send `sig`, wait; check status, message and folder, and that every child seen
+    (`seen`, and those alive now) is gone; return those children."""
+    kids = {**(seen or {}), **children(proc.pid)}
+    os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=WAIT)
+    name = signal.Signals(sig).name
+    assert proc.returncode == 128 + sig, err
+    assert f"render: interrupted ({name}); no output written" in err
+    assert "Traceback" not in err
+    assert sorted(p.name for p in out_dir.iterdir()) == sorted(keep)
+    for pid, comm in kids.items():
+        deadline = time.monotonic() + 30
+        while running(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert not running(pid), f"child {comm} ({pid}) still running"
+    return kids
+
+
+@pytest.fixture
+def scene(tmp_path) -> Path:
+    f = tmp_path / "s.json"
+    f.write_text(json.dumps(SCENE))
+    return f
+
+
+def test_sigterm_while_compiling(scene, tmp_path):
+    cache = tmp_path.parent / (tmp_path.name + "_numba")  # outside the output folder
+    cache.mkdir()
+    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
+                                            "--size", "32x32"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env(NUMBA_CACHE_DIR=str(cache)))
+    wait_for(proc, lambda: any(p.is_file() for p in cache.rglob("*")), "compiling")
+    stop(proc, signal.SIGTERM, tmp_path, {"s.json"})
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_signal_while_simulating(warm, scene, tmp_path, sig):
+    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
+                                            "--size", "16x16", "--duration", "30",
+                                            "--set", "simulation.steps_per_frame=600",
+                                            "--export-npz", str(tmp_path / "p.npz"),
+                                            "--export-obj", str(tmp_path / "objs")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    wait_for(proc, lambda: temp_files(tmp_path, ".x.gif.*.frames"), "simulating")
+    stop(proc, sig, tmp_path, {"s.json"})
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_while_rendering(warm, scene, tmp_path, sig):
+    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/frames/",
+                                            "--size", "1024x1024", "--aa", "4",
+                                            "--duration", "30"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    wait_for(proc, lambda: temp_files(tmp_path, ".frames.*.part/frame_00000.png"),
+             "rendering")
+    stop(proc, sig, tmp_path, {"s.json"})
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
+def test_signal_while_encoding_mp4_kills_ffmpeg(warm, scene, tmp_path, sig):
+    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.mp4"),
+                                            "--size", "256x256", "--duration", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    def ffmpeg_running():
+        kids = children(proc.pid)
+        return kids if any("ffmpeg" in c for c in kids.values()) else None
+
+    seen = wait_for(proc, ffmpeg_running, "encoding (ffmpeg running)")
+    kids = stop(proc, sig, tmp_path, {"s.json"}, seen)
+    assert any("ffmpeg" in c for c in kids.values())
+
+
+def test_sigterm_stops_report_workers(warm, scene, tmp_path):
+    proc = subprocess.Popen(render_cmd() + ["report", str(scene), "--out",
+                                            str(tmp_path / "r.html"), "--shader", "phong",
+                                            "--sweep", "cloth.ks=1000,2000", "--jobs", "2",
+                                            "--duration", "60", "--size", "32x32",
+                                            "--set", "simulation.steps_per_frame=300"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=child_env())
+    def workers_running():
+        kids = children(proc.pid)
+        return kids if len(kids) >= 2 and temp_files(tmp_path, ".r.*.part") else None
+
+    seen = wait_for(proc, workers_running, "simulating in worker processes")
+    kids = stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, seen)
+    assert len(kids) >= 2
