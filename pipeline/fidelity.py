@@ -35,17 +35,16 @@ from .forces import total_force
 from .reach import arm, budget_for
 from .scene import Scene
 
-#: accepted estimate per frame: SAFETY[model] * tolerance (calibrated: docs/fidelity.md)
-SAFETY = {"classic": 1.0, "fem": 0.5}
+SAFETY = 0.5  # accepted estimate per frame: SAFETY * tolerance (calibrated: docs/fidelity.md)
 SLEEP_FRACTION = 0.05  # quiet frame: no point moves this share of the tolerance ...
 SLEEP_TIME = 0.5  # ... for this long, and the motion decays so that what is left ...
 SLEEP_DRIFT = 0.25  # ... adds up to less than this share of the tolerance
 SLEEP_HORIZON = 10.0  # seconds of motion counted when it does not decay
 STABILITY_MARGIN = 0.9  # steps stay below this share of the explicit stability limit
-#: order of the error in the step per frame: Verlet is second order, but the classic
-#: model's stretch limit (one Provot pass per step) makes it first order (docs/fidelity.md)
-ORDER = {("verlet", "classic"): 1, ("verlet", "fem"): 2, ("implicit-euler", "classic"): 1,
-         ("implicit-euler", "fem"): 1}
+#: order of the error in the step, for the step-doubling estimate (FEM model: the classic
+#: model keeps the file's steps); Verlet's drag term is first order, which the estimate
+#: sees through the velocity it compares (AutoStepper._ahead)
+ORDER = {"verlet": 2, "implicit-euler": 1}
 GROWTH = 1.5  # the steps per frame change by at most this factor from frame to frame
 MAX_REDOS = 2  # a frame over the tolerance is redone at most this often, then kept
 COARSE_RATIO = 1.25  # the coarse run has at most 1/this of the steps (>= the floor)
@@ -153,7 +152,7 @@ class AutoStepper:
         self.scene = scene
         self.frame_dt = 1.0 / s.frames_per_sec
         self.base = sim.system  # the scene's own step: the damping rate is fixed there
-        self.order = ORDER[sim.integrator, s.model]
+        self.order = ORDER[sim.integrator]
         self.since_check = 0
         self.skip_passes = True  # False: every pass on every step (pipeline.reach)
         self.watched = np.zeros(2, dtype=np.uint8)  # the premises armed (pipeline.reach)
@@ -173,7 +172,7 @@ class AutoStepper:
             self.n_min = self.n_max = max(s.steps_per_frame, self.floor)
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
-        self.safety = SAFETY[s.model]
+        self.safety = SAFETY
         gamma = -math.log(1.0 - self.base.damping) / self.base.dt if self.base.damping else 0.0
         #: how long a velocity error lasts: the drag's time constant, within [frame, 1 s]
         self.persist = min(1.0, max(self.frame_dt, 1.0 / gamma if gamma > 0 else 1.0))
@@ -181,7 +180,6 @@ class AutoStepper:
         self.history: list[np.ndarray] = []  # and their positions (N, 3)
         self.state_dt = self.base.dt
         self.frame = 0
-        self.quiet = 0
         self.asleep = False
         self.budget = budget_for(0.0, self.base.thickness)
         self.steps_used: list[int] = []  # accepted steps per simulated frame
@@ -307,7 +305,6 @@ class AutoStepper:
                 self.slept += 1
                 return
             self.asleep = False
-            self.quiet = 0
             self.check_every = 1  # check the first frame awake
         self._arm_passes()
         start = self.sim._state.x.T.copy()

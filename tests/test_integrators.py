@@ -225,7 +225,7 @@ def test_course_sphere_scene_without_penetration(name):
 
 def test_bench_writes_charts_and_csv(tmp_path):
     pytest.importorskip("matplotlib")
-    from pipeline.bench import main
+    from pipeline.bench import AUTO_TOLERANCES, main
 
     out = tmp_path / "bench"
     assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
@@ -236,10 +236,12 @@ def test_bench_writes_charts_and_csv(tmp_path):
             assert (out / f"{stem}.{ext}").stat().st_size > 0
     # both models by default (tests/test_bench.py covers the FEM path), every integrator
     fem = len(INTEGRATORS)
+    auto = len(AUTO_TOLERANCES)  # fidelity auto: one point per tolerance and model
     rows = (out / "pinned2_work_precision.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * len(INTEGRATORS) + 2 * fem
+    assert len(rows) == 1 + 2 * len(INTEGRATORS) + 2 * fem + 2 * auto
     assert rows[0].startswith("model,integrator,")
     assert sum(r.startswith("classic,xpbd,") for r in rows) == 2
-    assert sum(r.startswith("fem,") for r in rows) == 2 * fem
+    assert sum(r.startswith("classic,auto,") for r in rows) == auto
+    assert sum(r.startswith("fem,") for r in rows) == 2 * fem + auto
     stab = (out / "pinned2_stability.csv").read_text().splitlines()
     assert len(stab) == 1 + len(INTEGRATORS) + fem
