@@ -672,6 +672,20 @@ def _wants_report(argv: Sequence[str]) -> bool:
                or (a.startswith("--out=") and a.lower().endswith(".html")) for a, b in pairs)
 
 
+def parse_subcommand(parser: argparse.ArgumentParser, argv: Sequence[str], name: str):
+    """A subcommand's arguments, or the exit status when there is nothing to run: 2 after
+    one line naming what is wrong, 0 after --help."""
+    err = _Errors(sys.stderr, quiet=False, debug="--debug" in argv)
+    try:
+        return parser.parse_args(argv)
+    except UsageError as exc:
+        err.say(str(exc))
+        err.say(f"try 'render {name} --help'")
+        return 2
+    except SystemExit as exc:  # --help
+        return int(exc.code or 0)
+
+
 def _run_subcommand(name: str, argv: Sequence[str]) -> int:
     import importlib
 

@@ -36,7 +36,7 @@ from .reach import arm, budget_for
 from .scene import Scene
 
 SAFETY = 0.5  # accepted estimate per frame: SAFETY * tolerance (calibrated: docs/fidelity.md)
-SLEEP_FRACTION = 0.05  # quiet frame: no point moves this share of the tolerance ...
+SLEEP_FRACTION = 0.5  # quiet frame: no point moves this share of the tolerance ...
 SLEEP_TIME = 0.5  # ... for this long, and the motion decays so that what is left ...
 SLEEP_DRIFT = 0.25  # ... adds up to less than this share of the tolerance
 SLEEP_HORIZON = 10.0  # seconds of motion counted when it does not decay
@@ -48,7 +48,9 @@ ORDER = {"verlet": 2, "implicit-euler": 1}
 GROWTH = 1.5  # the steps per frame change by at most this factor from frame to frame
 MAX_REDOS = 2  # a frame over the tolerance is redone at most this often, then kept
 COARSE_RATIO = 1.25  # the coarse run has at most 1/this of the steps (>= the floor)
-REARM_EVERY = 8  # frames between looks for passes that cannot act (pipeline.reach)
+REARM_EVERY = 8  # frames between looks for passes that cannot act (pipeline.reach) ...
+MAX_REARM_EVERY = 64  # ... backing off to this while nothing can be skipped
+PERSIST_FRAMES = 4  # a velocity error is weighed over at most this many frames
 MAX_CHECK_EVERY = 16  # error estimates every frame, thinned out to this while far below
 CHECK_COST = 1.5  # steps per kept step on a frame with an error estimate
 #: cost of one implicit-Euler step in Verlet steps (benchmarks/sim.py --features, 2026-11-23)
@@ -157,6 +159,8 @@ class AutoStepper:
         self.skip_passes = True  # False: every pass on every step (pipeline.reach)
         self.watched = np.zeros(2, dtype=np.uint8)  # the premises armed (pipeline.reach)
         self.armed_at = -REARM_EVERY
+        self.rearm_every = 1  # frames between armings: 1 .. MAX_REARM_EVERY (backs off while
+        #                       nothing can be skipped, back to REARM_EVERY when it can)
         self.tolerance = float(s.tolerance_px)
         self.camera = default_camera(scene, sim.model.x0.T, scene.render.width,
                                      scene.render.height)
@@ -174,10 +178,12 @@ class AutoStepper:
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
         gamma = -math.log(1.0 - self.base.damping) / self.base.dt if self.base.damping else 0.0
-        #: how long a velocity error lasts: the drag's time constant, within [frame, 1 s]
-        self.persist = min(1.0, max(self.frame_dt, 1.0 / gamma if gamma > 0 else 1.0))
-        self.motion: list[float] = []  # the latest frames' largest point motion (px)
-        self.history: list[np.ndarray] = []  # and their positions (N, 3)
+        #: how long a velocity error is weighed: the drag's time constant, within one and
+        #: PERSIST_FRAMES frames (an oscillation bounds what a velocity error does)
+        self.persist = self.frame_dt * min(PERSIST_FRAMES, max(1.0, 1.0 / (gamma * self.frame_dt)
+                                                                if gamma > 0 else math.inf))
+        self.history: list[np.ndarray] = []  # positions (N, 3) through the latest quiet frames
+        self.mpp: float | None = None  # metres per pixel at the cloth's nearest point
         self.state_dt = self.base.dt
         self.frame = 0
         self.asleep = False
@@ -285,14 +291,20 @@ class AutoStepper:
         (to find passes that can no longer act)."""
         system = self.sim.system
         reach = system.reach
-        broke = bool(np.any(self.watched & (reach.armed == 0)))
-        if not self.skip_passes or not (broke or self.frame - self.armed_at >= REARM_EVERY):
+        if not self.skip_passes:
+            return
+        if np.any(self.watched & (reach.armed == 0)):  # a premise broke: wait longer
+            self.rearm_every = min(MAX_REARM_EVERY, 2 * self.rearm_every)
+            self.watched[:] = 0
+        if self.frame - self.armed_at < self.rearm_every:
             return
         new = arm(reach, system.colliders.active, self.sim._state.x, self.scene,
                   system.thickness, *self.budget, system.self_collision)
         self.sim.system = system._replace(reach=new)
         self.watched = new.armed.copy()
         self.armed_at = self.frame
+        if not np.any(self.watched):  # nothing could be skipped: look again later
+            self.rearm_every = min(MAX_REARM_EVERY, 2 * self.rearm_every)
 
     def advance_frame(self) -> None:
         """Advance one output frame (DivergenceError when no step count up to the maximum
@@ -361,37 +373,48 @@ class AutoStepper:
         return int(min(self.n_max, max(self.n_min, want)))
 
     def _after_frame(self, start: np.ndarray) -> None:
+        """The motion budget of the next arming, and the sleep test: positions are kept only
+        through a run of quiet frames."""
         x = self.sim._state.x.T
-        moved_m = float(np.max(np.linalg.norm(x - start, axis=1))) if len(x) else 0.0
+        diff = x - start
+        moved_m = math.sqrt(float(np.max(np.einsum("ij,ij->i", diff, diff)))) if len(x) else 0.0
         self.budget = budget_for(moved_m, self.sim.system.thickness)
-        # an upper bound in pixels: metres times pixels per metre at the nearest point
-        self.motion.append(moved_m / metres_per_pixel(self.camera, x))
-        window = 2 * max(1, round(SLEEP_TIME / self.frame_dt / 2))
-        self.history.append(x.copy())
-        del self.motion[:-window], self.history[:-window - 1]
         t = self.frame * self.frame_dt
-        if self._at_rest(window) and wake_time(self.scene, t) != t:
+        if self.scene.wind is not None:  # never sleeps
+            return
+        if self.frame % REARM_EVERY == 1 or self.mpp is None:  # changes slowly
+            self.mpp = metres_per_pixel(self.camera, x)
+        # an upper bound in pixels: metres over metres per pixel at the nearest point
+        if moved_m / self.mpp >= SLEEP_FRACTION * self.tolerance:
+            self.history.clear()
+            return
+        if not self.history:
+            self.history.append(start)
+        self.history.append(x.copy())
+        window = 3 * max(1, round(SLEEP_TIME / self.frame_dt / 3))
+        del self.history[:-window - 1]
+        if len(self.history) > window and self._at_rest(window) and wake_time(self.scene, t) != t:
             self.asleep = True
-            self.motion.clear()
             self.history.clear()
 
     def _at_rest(self, window: int) -> bool:
         """The last `window` frames were quiet (no point moved SLEEP_FRACTION of the
-        tolerance in a frame) and the net drift they show, extrapolated, stays below
-        SLEEP_DRIFT of the tolerance: with d1, d2 the largest net displacements over the
-        window's two halves, d2 r / (1 - r) for a decay r = d2 / d1 < 1 per half window,
-        else d2 times the halves in SLEEP_HORIZON. Jitter in place has no net drift; a swing
-        through a turning point moves more in one half than it decays."""
-        if len(self.history) < window + 1 or max(self.motion) >= SLEEP_FRACTION * self.tolerance:
-            return False
-        first, mid, last = self.history[0], self.history[window // 2], self.history[-1]
-        scale = 1.0 / metres_per_pixel(self.camera, last)
-        d1 = float(np.max(np.linalg.norm(mid - first, axis=1))) * scale
-        d2 = float(np.max(np.linalg.norm(last - mid, axis=1))) * scale
+        tolerance in a frame) and the drift of their mean positions, extrapolated, stays
+        below SLEEP_DRIFT of the tolerance. Means over the window's thirds average out jitter
+        in place (contact and the stretch limit keep some points trembling forever); with
+        d1, d2 the largest moves of a point's mean from one third to the next, the drift
+        left is d2 r / (1 - r) for a decay r = d2 / d1 < 1 per third, else d2 times the
+        thirds in SLEEP_HORIZON. A swing through a turning point does not decay."""
+        third = window // 3
+        means = [np.mean(self.history[1 + k * third:1 + (k + 1) * third], axis=0)
+                 for k in range(3)]
+        scale = 1.0 / self.mpp
+        d1 = float(np.max(np.linalg.norm(means[1] - means[0], axis=1))) * scale
+        d2 = float(np.max(np.linalg.norm(means[2] - means[1], axis=1))) * scale
         if d2 < d1:
             remaining = d2 * (d2 / d1) / (1.0 - d2 / d1)
         else:
-            remaining = d2 * SLEEP_HORIZON / (window // 2 * self.frame_dt)
+            remaining = d2 * SLEEP_HORIZON / (third * self.frame_dt)
         return remaining < SLEEP_DRIFT * self.tolerance
 
     def _diverged(self, n: int) -> None:

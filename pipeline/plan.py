@@ -29,15 +29,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
-    err = _cli._Errors(sys.stderr, quiet=False, debug=False)
-    try:
-        args = build_parser().parse_args(argv)
-    except _cli.UsageError as exc:
-        err.say(str(exc))
-        err.say("try 'render plan --help'")
-        return 2
-    except SystemExit as exc:  # --help
-        return int(exc.code or 0)
+    args = _cli.parse_subcommand(build_parser(), argv, "plan")
+    if isinstance(args, int):
+        return args
     from .scene import load_scene
     from .simulation import Simulation
 

@@ -92,6 +92,7 @@ def reach_check(x, reach, active, thickness):
                 d2 += d * d
             if not d2 >= limit:
                 r.self_on[0] = 1
+                r.armed[1] = 0  # on for the rest of the arming: nothing left to watch
                 break
 
 

@@ -1082,16 +1082,8 @@ def run(args) -> int:
 def main(argv: Sequence[str] | None = None) -> int:
     """`render report ...` with its own parser; returns the exit status."""
     argv = sys.argv[1:] if argv is None else list(argv)
-    err = _cli._Errors(sys.stderr, quiet=False, debug="--debug" in argv)
-    try:
-        args = build_parser().parse_args(argv)
-    except _cli.UsageError as exc:
-        err.say(str(exc))
-        err.say("try 'render report --help'")
-        return 2
-    except SystemExit as exc:  # --help
-        return int(exc.code or 0)
-    return run(args)
+    args = _cli.parse_subcommand(build_parser(), argv, "report")
+    return args if isinstance(args, int) else run(args)
 
 
 if __name__ == "__main__":  # python -m pipeline.report

@@ -8,16 +8,12 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from conftest import cloth_dict, scene_dict
 
 from pipeline.cli import main
 
-SCENE = {
-    "cloth": {"width": 1, "height": 1, "num_width_points": 12, "num_height_points": 12,
-              "thickness": 0.0095, "orientation": 0, "damping": 0.2, "density": 150.0,
-              "ks": 5000.0, "enable_structural": True, "enable_shearing": True,
-              "enable_bending": True},
-    "sphere": {"origin": [0.5, 0.2, 0.5], "radius": 0.2, "friction": 0.3},
-}
+SCENE = scene_dict(cloth_dict(12, 12, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
+                   spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
 RUN = ["--size", "128x128", "--duration", "0.4", "--quiet"]
 
 

@@ -18,16 +18,12 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import cloth_dict, scene_dict
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = {
-    "cloth": {"width": 1, "height": 1, "num_width_points": 12, "num_height_points": 12,
-              "thickness": 0.0095, "orientation": 0, "damping": 0.2, "density": 150.0,
-              "ks": 5000.0, "enable_structural": True, "enable_shearing": True,
-              "enable_bending": True},
-    "sphere": {"origin": [0.5, 0.2, 0.5], "radius": 0.2, "friction": 0.3},
-    "plane": {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5},
-}
+SCENE = scene_dict(cloth_dict(12, 12, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
+                   spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)],
+                   planes=[((0, 0, 0), (0, 1, 0), 0.5)])
 WAIT = 300  # seconds at most for a moment to come (a first compilation on a busy machine)
 
 pytestmark = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /proc")
