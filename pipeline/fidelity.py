@@ -159,8 +159,9 @@ class AutoStepper:
         self.skip_passes = True  # False: every pass on every step (pipeline.reach)
         self.watched = np.zeros(2, dtype=np.uint8)  # the premises armed (pipeline.reach)
         self.armed_at = -REARM_EVERY
-        self.rearm_every = 1  # frames between armings: 1 .. MAX_REARM_EVERY (backs off while
-        #                       nothing can be skipped, back to REARM_EVERY when it can)
+        #: frames between armings: REARM_EVERY while their premises hold, doubling up to
+        #: MAX_REARM_EVERY while they break or nothing can be skipped
+        self.rearm_every = REARM_EVERY
         self.tolerance = float(s.tolerance_px)
         self.camera = default_camera(scene, sim.model.x0.T, scene.render.width,
                                      scene.render.height)
@@ -298,6 +299,7 @@ class AutoStepper:
             self.watched[:] = 0
         if self.frame - self.armed_at < self.rearm_every:
             return
+        held = bool(np.any(self.watched))  # the last arming's premises held all along
         new = arm(reach, system.colliders.active, self.sim._state.x, self.scene,
                   system.thickness, *self.budget, system.self_collision)
         self.sim.system = system._replace(reach=new)
@@ -305,6 +307,8 @@ class AutoStepper:
         self.armed_at = self.frame
         if not np.any(self.watched):  # nothing could be skipped: look again later
             self.rearm_every = min(MAX_REARM_EVERY, 2 * self.rearm_every)
+        elif held:
+            self.rearm_every = REARM_EVERY
 
     def advance_frame(self) -> None:
         """Advance one output frame (DivergenceError when no step count up to the maximum
