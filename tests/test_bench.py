@@ -122,15 +122,15 @@ def test_stability_search_per_model():
 def test_fem_work_precision_converges():
     rows, info = work_precision(_pinned2("fem"), t_end=0.1, sweep=(30, 60),
                                 integrators=("verlet", "rk4", "implicit-euler", "xpbd"),
-                                log=lambda *a: None, auto_tolerances=(0.05, 4.0))
+                                log=lambda *a: None, auto_tolerances=(0.002, 4.0))
     assert info["model"] == "fem" and info["reference_check_rms"] < 1e-8
     auto = {r["tolerance_px"]: r for r in rows if r["integrator"] == "auto"}
     rows = [r for r in rows if r["integrator"] != "auto"]
     assert {r["integrator"] for r in rows} == {"verlet", "rk4", "implicit-euler", "xpbd"}
     # fidelity auto: a tighter tolerance takes more steps and lands nearer the reference
-    assert auto[0.05]["ok"] and auto[4.0]["ok"]
-    assert auto[0.05]["steps_per_frame"] > auto[4.0]["steps_per_frame"]
-    assert auto[0.05]["rms_error"] < auto[4.0]["rms_error"]
+    assert auto[0.002]["ok"] and auto[4.0]["ok"]
+    assert auto[0.002]["steps_per_frame"] > auto[4.0]["steps_per_frame"]
+    assert auto[0.002]["rms_error"] < auto[4.0]["rms_error"]
     by = {(r["integrator"], r["steps_per_frame"]): r for r in rows}
     assert all(r["ok"] and r["probe_strain_p99"] < STRAIN_LIMIT for r in rows)
     for name in ("verlet", "rk4"):  # errors shrink with the step
