@@ -132,10 +132,9 @@ def wake_time(scene: Scene, t: float) -> float | None:
     last key."""
     if scene.wind is not None:
         return t
-    times = [k.time for c in scene.colliders for k in c.keyframes]
     firsts = [c.keyframes[0].time for c in scene.colliders if c.keyframes]
     lasts = [c.keyframes[-1].time for c in scene.colliders if c.keyframes]
-    if not times or t >= max(lasts):
+    if not lasts or t >= max(lasts):
         return None
     if any(f <= t < last for f, last in zip(firsts, lasts)):
         return t

@@ -28,6 +28,7 @@ import numpy as np
 
 from .colliders import ColliderTable, collide_all, pack_colliders
 from .model import ClothModel
+from .reach import clearance
 from .scene import Box, MeshCollider, Scene, Sphere
 
 
@@ -73,7 +74,10 @@ def resolve_start_inside(scene: Scene, model: ClothModel) -> list[tuple[object, 
     the module docstring) and warn (StartInsideWarning) once per such collider.
     Returns (collider, number of points that started inside it) pairs."""
     found = []
+    points = model.x0.T
     for collider in scene.colliders:
+        if not collider.keyframes and clearance(collider, points) > 0.0:
+            continue  # no point can be inside: skip the projection (and its compilation)
         count = int(project_out(model.x0.copy(), model.pinned, still_table([collider])).sum())
         if count:
             found.append((collider, count))
