@@ -9,7 +9,7 @@ endpoints as in the pre-pass, so skipping it is exactly what the full walk would
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from .forces import CHUNKS, _chunk
 

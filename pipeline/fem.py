@@ -45,7 +45,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 
 class FemParams(NamedTuple):

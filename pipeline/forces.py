@@ -18,7 +18,7 @@ walk over the spring list.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
                   fem_jacobian_diagonal)

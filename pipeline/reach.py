@@ -22,7 +22,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 from .colliders import box, mesh, plane, sphere
 from .scene import Scene

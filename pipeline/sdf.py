@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 HEADER_WIDTH = 10  # offset, origin (3), h, 1/h, nx, ny, nz, h * sqrt(3)
 MAX_NODES = 2_000_000

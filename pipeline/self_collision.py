@@ -17,7 +17,7 @@ How it is made fast without changing a bit:
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 _EMPTY_LIMIT = 4.0e18  # box coordinates beyond this (or NaN) are not binned
 DENSE_CELLS_PER_POINT = 8  # box grids up to this many cells per point use the counting sort

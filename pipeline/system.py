@@ -10,7 +10,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits

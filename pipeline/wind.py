@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
 GUST_MODES = 8  # plane waves in the gust field

@@ -6,16 +6,36 @@
     img = shading.render(meshes, cam, light=None, shader="phong", params={"aa": 2})
 
 `shading.SHADERS` lists the shader names; `shading.TextureError` is raised for a missing
-or unreadable texture (path in the message).
+or unreadable texture (path in the message). `import shading` is light: the camera is
+numpy only, and the modules that import numba load on first use of their names.
 """
-from .camera import Camera
-from .mesh import (Mesh, box_mesh, cloth_mesh, normals_tangents, plane_mesh, sphere_mesh,
-                   triangle_mesh)
-from .renderer import Renderer, get_renderer, render
-from .shaders import REGISTRY, SHADERS, Shader, get_shader
-from .textures import TextureError, load_cubemap, load_texture
+from __future__ import annotations
 
-__all__ = ["Camera", "Mesh", "cloth_mesh", "sphere_mesh", "plane_mesh", "box_mesh",
-           "triangle_mesh", "normals_tangents",
-           "Renderer", "get_renderer", "render", "SHADERS", "REGISTRY", "Shader",
-           "get_shader", "TextureError", "load_texture", "load_cubemap"]
+from importlib import import_module
+from typing import Any
+
+from .camera import Camera
+
+_LAZY = {
+    "Mesh": "mesh", "box_mesh": "mesh", "cloth_mesh": "mesh", "normals_tangents": "mesh",
+    "plane_mesh": "mesh", "sphere_mesh": "mesh", "triangle_mesh": "mesh",
+    "Renderer": "renderer", "get_renderer": "renderer", "render": "renderer",
+    "REGISTRY": "shaders", "SHADERS": "shaders", "Shader": "shaders", "get_shader": "shaders",
+    "TextureError": "textures", "load_texture": "textures", "load_cubemap": "textures",
+}
+
+_SUBMODULES = {"jit", "lighting", "mesh", "raster", "renderer", "shade", "shaders", "testing",
+               "textures"}
+
+__all__ = ["Camera", *_LAZY]
+
+
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        if name not in _SUBMODULES:
+            raise AttributeError(f"module 'shading' has no attribute {name!r}")
+        return import_module(f".{name}", __name__)  # sets the attribute itself
+    value = getattr(import_module(f".{module}", __name__), name)
+    globals()[name] = value  # later look-ups skip this hook
+    return value

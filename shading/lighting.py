@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from numba import njit
+from .jit import njit
 
 from .textures import bilinear
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 CLOTH_COLOUR = (1.0, 1.0, 1.0)
 SPHERE_COLOUR = (1.0, 1.0, 1.0)

@@ -18,11 +18,11 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import njit
+from .jit import njit
 
 from . import raster as R
 from .camera import Camera
-from .shade import Frame, stage_for
+from .shade import Frame, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
 from .textures import resolve
 
@@ -210,7 +210,8 @@ class Renderer:
         li = _vec3(params.get("light_intensity", li), "light intensity")
         bg = _vec3(params.get("background", DEFAULT_BACKGROUND), "background")
         lines = sh.primitive == "lines"
-        stage = sh.stage if sh.stage is not None else stage_for(sh.fragment)
+        key = sh.stage_key()
+        stage = fragment_stage if key >= 0 else uncached_fragment_stage
         if clock:
             t1 = clock()
         nv, npr, kd = self._gather(meshes, sh, prm, hmap)
@@ -259,7 +260,7 @@ class Renderer:
         f = Frame(self.height, self.width, self.aa, groups, self.prim, self.bary, self.rowlo,
                   self.rowhi, self.verts, self.obj_of, self.va, kd, camera.eye, lp, li, bg,
                   self.image)
-        _run_groups(stage, groups, (f, prm, tex, hmap, cube), first=True)
+        _run_groups(stage, groups, (f, prm, tex, hmap, cube, key), first=True)
         if clock:
             t5 = clock()
             timings.update(prepare=t1 - t0, gather=t2 - t1, geometry=t3 - t2, raster=t4 - t3,

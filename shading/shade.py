@@ -1,24 +1,31 @@
-"""Deferred shading over the visibility buffer: the shared helpers of every shader's
-fragment stage (SPEC 4-5), all numba, cached, inlined into each shader's kernel.
+"""Deferred shading over the visibility buffer: the fragment stage of every shader (SPEC
+4-5), numba, cached.
 
-Every shader module owns one small cached kernel, its fragment stage, built from these
-helpers and its own colour function `fragment` (see shaders/phong.py):
+One kernel, `fragment_stage`, is the fragment stage of every shader: for each output row of
+its group it fills the background outside the row's covered span, shades each covered
+sample with the shader's colour function `fragment` (shaders/phong.py), clamps, box filters
+the aa x aa samples and writes 8 bits:
 
-    @njit(**STAGE)
-    def stage(f, g, prm, tex, hmap, cube):
-        for y in range(g, f.height, f.groups):           # the rows of group g
-            x0, x1 = begin_row(f, y)                      # background outside [x0, x1)
-            for x in range(x0, x1):
-                c = ZERO
-                for k in range(f.aa * f.aa):
-                    s = sample(f, y, x, k)
-                    if f.prim[s] < 0:
-                        c = add(c, f.bg)
-                    else:
-                        p, n0, v, uv, t, kd = fetch(f, s)
-                        c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex,
-                                            hmap, cube))
-                put(f, y, x, c)
+    for y in range(g, f.height, f.groups):           # the rows of group g
+        x0, x1 = begin_row(f, y)                      # background outside [x0, x1)
+        for x in range(x0, x1):
+            c = ZERO
+            for k in range(f.aa * f.aa):
+                s = sample(f, y, x, k)
+                if f.prim[s] < 0:
+                    c = add(c, f.bg)
+                else:
+                    p, n0, v, uv, t, kd = fetch(f, s)
+                    c = add(c, fragment(p, n0, ...))   # the shader's colour
+            put(f, y, x, c)
+
+The shader is an argument, a `ShaderKey`: an int that numba types as its literal value, so
+numba compiles the kernel once per shader with that shader's fragment inlined (as if each
+shader had its own copy of the loop), and caches each on disk under the key. A registered
+shader's key is a checksum of its name and of the sources its fragment is built from
+(`shader_key`), so editing a shader or a helper gives a new key rather than a stale kernel.
+A shader made at run time (not a module of shading/shaders) gets a negative key and the
+uncached twin of the kernel (`uncached_fragment_stage`): compiled once per process.
 
 The renderer runs groups 0 .. f.groups - 1 on as many threads (the GIL is released), so
 each output row has one owner and the image is the same for any number of threads.
@@ -31,17 +38,20 @@ tangent), kd the object colour (perspective-correct weights from the rasteriser)
 samples of a pixel and writes 8 bits, rounded to nearest. Whatever a colour function
 does not use (say t) is removed by the compiler; `begin_row` also means the background
 costs a fill, not a look-up per sample.
-
-A `Shader` given only a fragment function (no kernel) gets an equivalent kernel from
-`stage_for(fragment)`: compiled once per process, not cached on disk.
 """
 from __future__ import annotations
 
+import itertools
 import math
+import zlib
 from collections import namedtuple
+from pathlib import Path
 
 import numpy as np
-from numba import njit
+from numba.core import types
+from numba.extending import overload, typeof_impl
+
+from .jit import njit
 
 from .lighting import normalize
 
@@ -154,29 +164,68 @@ def fetch(f, s):
     return p, n0, v, uv, t, kd
 
 
-_generic: dict = {}
+class ShaderKey(int):
+    """A shader's key for `fragment_stage`: numba types it as its literal value."""
 
 
-def stage_for(fragment):
-    """The fragment stage of a shader given only as a fragment function
-    fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube) -> rgb. Built and
-    compiled once per process (not cached on disk: give the Shader its own kernel)."""
-    st = _generic.get(fragment)
-    if st is None:
-        @njit(**dict(STAGE, cache=False))
-        def st(f, g, prm, tex, hmap, cube):
-            for y in range(g, f.height, f.groups):
-                x0, x1 = begin_row(f, y)
-                for x in range(x0, x1):
-                    c = ZERO
-                    for k in range(f.aa * f.aa):
-                        s = sample(f, y, x, k)
-                        if f.prim[s] < 0:
-                            c = add(c, f.bg)
-                        else:
-                            p, n0, v, uv, t, kd = fetch(f, s)
-                            c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex,
-                                                hmap, cube))
-                    put(f, y, x, c)
-        _generic[fragment] = st
-    return st
+@typeof_impl.register(ShaderKey)
+def _typeof_shader_key(value, context):
+    return types.IntegerLiteral(int(value))
+
+
+_FRAGMENTS: dict[int, object] = {}  # key -> fragment (an @njit colour function)
+_run_time_keys = itertools.count(-1, -1)
+_SOURCES = ("lighting.py", "textures.py")  # helpers a fragment inlines
+
+
+def shader_key(name: str, fragment, registered: bool) -> ShaderKey:
+    """The key of a shader: for a module of shading/shaders (`registered`), a checksum of
+    its name and of the sources a fragment can inline (every shader module and the
+    helpers); else a new negative key of this process."""
+    if registered:
+        here = Path(__file__).resolve().parent
+        files = sorted((here / "shaders").glob("*.py")) + [here / n for n in _SOURCES]
+        key = zlib.crc32(name.encode())
+        for path in files:
+            key = zlib.crc32(path.read_bytes(), key)
+    else:
+        key = next(_run_time_keys)
+    _FRAGMENTS[key] = fragment
+    return ShaderKey(key)
+
+
+def _colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+    """The colour of a sample by shader `key` (a stub: numba compiles the overload)."""
+    raise NotImplementedError("only callable from numba")
+
+
+@overload(_colour, inline="always", jit_options=dict(STAGE, cache=False))
+def _colour_overload(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+    if not isinstance(key, types.IntegerLiteral):
+        return None  # numba retries with the literal
+    fragment = _FRAGMENTS[key.literal_value]
+
+    def colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+        return fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube)
+    return colour
+
+
+def _fragment_stage(f, g, prm, tex, hmap, cube, key):
+    """The fragment stage of output rows g, g + f.groups, ... by the shader `key`."""
+    for y in range(g, f.height, f.groups):
+        x0, x1 = begin_row(f, y)
+        for x in range(x0, x1):
+            c = ZERO
+            for k in range(f.aa * f.aa):
+                s = sample(f, y, x, k)
+                if f.prim[s] < 0:
+                    c = add(c, f.bg)
+                else:
+                    p, n0, v, uv, t, kd = fetch(f, s)
+                    c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
+                                       cube))
+            put(f, y, x, c)
+
+
+fragment_stage = njit(**STAGE)(_fragment_stage)
+uncached_fragment_stage = njit(**dict(STAGE, cache=False))(_fragment_stage)

@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from .jit import njit
 
 CUBE_FACES = ("posx", "negx", "posy", "negy", "posz", "negz")
 DEFAULT_TEXTURE = "cloth.png"

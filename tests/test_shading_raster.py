@@ -11,7 +11,7 @@ from numba import njit
 import shading
 from shading import Camera, Mesh, Renderer, Shader
 from shading.mesh import normals_tangents
-from shading.shade import STAGE, ZERO, add, begin_row, fetch, put, sample
+from shading import shade
 
 
 @njit(cache=True)
@@ -19,32 +19,7 @@ def _flat(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
     return kd
 
 
-FLAT = Shader("flat", _flat)  # fragment only: the renderer builds its stage
-
-
-@njit(cache=True, inline="always")
-def _flat_colour(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
-    return kd
-
-
-@njit(**STAGE)
-def _flat_stage(f, g, prm, tex, hmap, cube):
-    for y in range(g, f.height, f.groups):
-        x0, x1 = begin_row(f, y)
-        for x in range(x0, x1):
-            c = ZERO
-            for k in range(f.aa * f.aa):
-                s = sample(f, y, x, k)
-                if f.prim[s] < 0:
-                    c = add(c, f.bg)
-                else:
-                    p, n0, v, uv, t, kd = fetch(f, s)
-                    c = add(c, _flat_colour(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
-                                            cube))
-            put(f, y, x, c)
-
-
-FLAT_STAGED = Shader("flat", _flat_colour, stage=_flat_stage)
+FLAT = Shader("flat", _flat)  # made at run time: the uncached fragment stage
 
 
 def quad(z=0.0, half=1.0, flip=False, colour=(1, 1, 1), nx=2, ny=2):
@@ -303,15 +278,21 @@ def test_reused_renderer_matches_fresh_one():
         np.testing.assert_array_equal(got, want, err_msg=sh)
 
 
-def test_custom_shader_with_its_own_cached_stage():
-    # a shader module's pattern (shade.py): a colour function plus the few-line stage
+def test_one_fragment_stage_specialised_per_shader():
+    """shade.fragment_stage serves every registered shader, compiled once per shader key
+    (a literal: the shader's fragment inlined); a run-time shader gets a negative key and
+    the uncached twin."""
     cam = Camera((0.0, 0.0, 3.0), (0.0, 0.0, 0.0), width=32, height=32)
     near, far = quad(z=0.5, half=0.5, colour=(0, 1, 0)), quad(z=-0.5, colour=(1, 0, 0))
-    a = shading.render([near, far], cam, None, FLAT_STAGED)
-    b = shading.render([near, far], cam, None, FLAT)  # stage built from the fragment
-    np.testing.assert_array_equal(a, b)
+    a = shading.render([near, far], cam, None, FLAT)
     assert tuple(a[16, 16]) == (0, 255, 0) and tuple(a[2, 16]) == (255, 0, 0)
-    assert FLAT_STAGED.stage.stats.cache_hits or FLAT_STAGED.stage.stats.cache_misses
+    assert FLAT.stage_key() < 0
+    keys = {shading.REGISTRY[n].stage_key() for n in ("normal", "toon")}
+    assert len(keys) == 2 and min(keys) >= 0
+    for name in ("normal", "toon"):
+        shading.render([near, far], cam, None, name)
+    compiled = {sig[-1].literal_value for sig in shade.fragment_stage.signatures}
+    assert keys <= compiled and FLAT.stage_key() not in compiled
 
 
 _STARTUP = """
@@ -327,7 +308,7 @@ for name in shading.SHADERS:
 kernels = [raster.project, raster.setup_triangles, raster.setup_lines, raster.bin_prims,
            raster.raster_triangles, raster.raster_lines, mesh._normals_tangents,
            renderer._pack_vertices, renderer._pack_prims, displacement._displace]
-kernels += [sh.stage for sh in REGISTRY.values()]
+kernels += [shading.shade.fragment_stage]
 print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hits) for k in kernels))
 """
 

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from . import box, mesh, plane, sphere
 

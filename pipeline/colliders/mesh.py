@@ -19,7 +19,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 from .. import sdf
 from ..scene import MeshCollider, SceneError

@@ -4,7 +4,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 from ..scene import Plane
 

@@ -12,7 +12,7 @@ State: positions x, velocities v, start-of-step positions last, all (3, N).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard

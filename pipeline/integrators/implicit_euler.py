@@ -19,7 +19,7 @@ velocity change v' += dx / dt (docs/integrators.md).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
                       spring_force_buffer, total_force)

@@ -10,7 +10,7 @@ State: positions x, velocities v, start-of-step positions last (3, N) each, plus
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard

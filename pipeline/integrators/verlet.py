@@ -7,7 +7,7 @@ see the velocity of the last step, (x - x_last) / dt.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from shading.jit import njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, position_passes, step_guard

@@ -23,7 +23,7 @@ triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from shading.jit import njit
 
 from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)

@@ -1,11 +1,11 @@
 """displacement: every vertex moves to p + n h(uv) k_h before projection; fragments are
 shaded as bump at the displaced position with the undisplaced normal and tangent."""
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..textures import bilinear
 from . import Shader
-from .bump import K_H, PARAMS, fragment, stage
+from .bump import K_H, PARAMS, fragment
 
 
 @njit(cache=True, nogil=True)
@@ -24,4 +24,4 @@ def vertex(positions, normals, uvs, prm, hmap, out=None):
 
 
 SHADER = Shader("displacement", fragment, PARAMS, vertex=vertex, textures=("height_map",),
-                doc=__doc__, stage=stage)  # fragments shaded exactly as bump
+                doc=__doc__)  # fragments shaded exactly as bump

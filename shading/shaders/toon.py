@@ -3,10 +3,9 @@ colour = k_d (ambient + diffuse q) + spec s, times outline_factor where n.v < ou
 No distance fall-off (I and r are not used)."""
 import math
 
-from numba import njit
+from ..jit import njit
 
 from ..lighting import dot, normalize, powf, sub, two_sided
-from ..shade import STAGE, ZERO, add, begin_row, fetch, put, sample
 from . import Shader, param_offsets
 
 PARAMS = {"levels": 4.0, "ambient": 0.15, "diffuse": 0.85, "p": 100.0,
@@ -26,21 +25,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
     return ((kd[0] * a + s) * f, (kd[1] * a + s) * f, (kd[2] * a + s) * f)
 
 
-@njit(**STAGE)
-def stage(f, g, prm, tex, hmap, cube):
-    """The fragment stage (see shade.py) of output rows g, g + f.groups, ..."""
-    for y in range(g, f.height, f.groups):
-        x0, x1 = begin_row(f, y)
-        for x in range(x0, x1):
-            c = ZERO
-            for k in range(f.aa * f.aa):
-                s = sample(f, y, x, k)
-                if f.prim[s] < 0:
-                    c = add(c, f.bg)
-                else:
-                    p, n0, v, uv, t, kd = fetch(f, s)
-                    c = add(c, fragment(p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap, cube))
-            put(f, y, x, c)
-
-
-SHADER = Shader("toon", fragment, PARAMS, doc=__doc__, stage=stage)
+SHADER = Shader("toon", fragment, PARAMS, doc=__doc__)

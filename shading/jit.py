@@ -1,0 +1,57 @@
+"""numba's `njit` and `prange` for every kernel of clothpipe, with numba's on-disk cache
+made safe for processes that compile at the same time.
+
+numba's cache (`IndexDataCacheFile.save`) reads a function's index, picks a data-file name
+not yet in it, writes the index, then the data. Two processes that compile different
+signatures of one function at once both pick `<function>.1.nbc`, and one signature's index
+entry ends up naming the other's machine code: a segfault when it is loaded (numba#4807,
+numba#10128). Test workers (pytest-xdist), report pools, the compile helper of a first run
+and Dask workers all compile into one cache. Here a save holds an exclusive lock on its cache
+folder for the whole read-pick-write, and writes the data before the index, so that a reader
+(which takes no lock) never finds an entry whose data is not in place.
+"""
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+
+from numba import njit, prange
+from numba.core import caching
+
+__all__ = ["njit", "prange"]
+
+LOCK_NAME = "clothpipe-cache.lock"
+
+
+@contextlib.contextmanager
+def _cache_lock(folder: str):
+    """An exclusive lock on the cache folder (fcntl; no lock where fcntl is missing)."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: numba's own behaviour
+        yield
+        return
+    fd = os.open(os.path.join(folder, LOCK_NAME), os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+def _locked_save(self, key, data) -> None:
+    """IndexDataCacheFile.save under the folder's lock, data first, then the index."""
+    with _cache_lock(self._cache_path):
+        overloads = self._load_index()
+        name = overloads.get(key)
+        if name is None:
+            taken = set(overloads.values())
+            name = next(n for n in map(self._data_name, itertools.count(1)) if n not in taken)
+        self._save_data(name, data)
+        if overloads.get(key) != name:
+            overloads[key] = name
+            self._save_index(overloads)
+
+
+caching.IndexDataCacheFile.save = _locked_save
