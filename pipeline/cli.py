@@ -400,6 +400,8 @@ def _run(args, err: _Errors) -> int:
 
 def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_meshes,
              t_wall) -> int:
+    from .warmup import RenderJob, warm_up
+
     timers = _Timers()
     model = sim.model
     out_w = writers.get("out")
@@ -414,8 +416,12 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         timers.render += time.perf_counter() - t0
         return img
 
+    show = progress_enabled(args.quiet)
+    # A first run on this machine compiles the kernels, in two processes when it can.
+    compiled = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
+                       say=err.say if show else None)
     # Render the initial state before simulating: a missing texture or a broken shader
-    # fails now, not after the simulation, and the renderer's kernels get compiled.
+    # fails now, not after the simulation.
     first_img = None
     needs_first = plan.kind is not None and plan.sim_frames[0] == 0
     if plan.kind is not None:
@@ -427,7 +433,6 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
                          height=16, aa=1)
             timers.render += time.perf_counter() - t0
 
-    show = progress_enabled(args.quiet)
     n_out = len(plan.sim_frames)
     sim_bar = bar(plan.sim_frames[-1], "simulate", "frame", show, 0)
     out_bar = bar(n_out, "render", "frame", show, 1)
@@ -500,8 +505,9 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
             if key in writers:
                 what.append(f"{writers[key].target} ({_fmt_bytes(writers[key].nbytes)})")
         size = f" {plan.width}x{plan.height} {plan.shader}" if out_w is not None else ""
+        compile_text = f"compile {compiled:.2f} s, " if compiled else ""
         err.say(f"{n_out} frame{'s' if n_out != 1 else ''}{size} -> {', '.join(what)}; "
-                f"simulate {timers.simulate:.2f} s, render {timers.render:.2f} s, "
+                f"{compile_text}simulate {timers.simulate:.2f} s, render {timers.render:.2f} s, "
                 f"encode {timers.encode:.2f} s, total {time.perf_counter() - t_wall:.2f} s")
         if sim.stepper is not None:
             err.say(sim.stepper.summary_text())

@@ -1,0 +1,207 @@
+"""The first run on a machine: compile a scene's numba kernels in two processes at once.
+
+numba compiles a kernel on its first call and caches the machine code on disk; later runs
+load it in milliseconds. On an empty cache compiling is nearly all of a short render (the
+README's first command: 44 of its 46 s, 2026-11-24), and numba compiles in Python, under
+the GIL, so threads cannot share the work. `warm_up` finds which of a scene's kernels are
+not cached yet. If both the simulator's and the renderer's are missing, a helper process
+(`python -m pipeline.warmup`) compiles the renderer's and part of the simulator's while
+this process compiles the rest, then this process compiles the integrator's stepping kernel
+on top of both (loading the helper's work from the cache). The cache is safe for two
+writers (shading.jit). Otherwise everything missing is compiled here, as before.
+
+The helper is sent plain data (the packed System, the scene, the cloth model), never numba
+objects. Its jobs are named `module:function`. Whatever it fails to do is compiled here
+later: a failed helper costs time, never correctness. An interrupted run kills it.
+"""
+from __future__ import annotations
+
+import copy
+import importlib
+import pickle
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+# Kernels compiled in this process / in the helper on a cold start, with their cold compile
+# CPU times in seconds (the README's first command, 2026-11-24), which balance the two and
+# give the estimate of the first-run message. The helper then compiles the renderer's.
+HERE = {"pipeline.colliders:collide_all": 11.8, "pipeline.system:step_guard": 2.1}
+HELPER = {"pipeline.forces:total_force": 7.5, "pipeline.system:_classic_stretch_limit": 3.7,
+          "pipeline.reach:reach_check": 0.9, "pipeline.self_collision:self_collide": 5.0}
+RENDER_SECONDS = 10.0  # every renderer kernel for one shader
+STEP_SECONDS = 11.0  # the integrator's stepping kernel and the position passes, after both
+
+
+@dataclass
+class Job:
+    """One kernel to compile: `module:function` and arguments of the types it is called with."""
+
+    name: str
+    args: tuple
+
+    def dispatcher(self):
+        module, function = self.name.split(":")
+        return getattr(importlib.import_module(module), function)
+
+    def cached(self) -> bool:
+        """Compiled in this process already, or in numba's disk cache for these types."""
+        disp = self.dispatcher()
+        sig = tuple(disp.typeof_pyval(a) for a in self.args)
+        return sig in disp.overloads or any(key[0] == sig for key in _cache_index(disp))
+
+    def compile(self) -> None:
+        disp = self.dispatcher()
+        disp.compile(tuple(disp.typeof_pyval(a) for a in self.args))
+
+
+def _cache_index(disp) -> list[tuple]:
+    """The keys of a dispatcher's fresh disk cache for this machine ([] if none)."""
+    cache = getattr(disp, "_cache", None)
+    if cache is None or not hasattr(cache, "_cache_file"):
+        return []
+    magic = disp.targetctx.codegen().magic_tuple()
+    return [key for key in cache._cache_file._load_index() if key[1] == magic]
+
+
+def sim_jobs(system) -> tuple[list[Job], list[Job]]:
+    """(jobs for this process, jobs for the helper): the kernels every integrator calls
+    once per step, with arguments of the types the integrators pass (self-collision too
+    when the scene turns it off: the switch is a value, the code is compiled)."""
+    s = system
+    x = np.ascontiguousarray(s.x0, dtype=np.float64)
+    last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
+    args = {"pipeline.forces:total_force": (x, v, 0.0, s, f),
+            "pipeline.system:step_guard": (x, last, s),
+            "pipeline.colliders:collide_all": (x, last, s.pinned, s.colliders, 0.0, s.dt),
+            "pipeline.self_collision:self_collide": (
+                x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
+                s.scratch),
+            "pipeline.system:_classic_stretch_limit": (x, s, s.fem),
+            "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
+    return ([Job(n, args[n]) for n in HERE if n in args],
+            [Job(n, args[n]) for n in HELPER if n in args])
+
+
+@dataclass
+class RenderJob:
+    """A tiny frame of the scene with the shader and supersampling of the real ones."""
+
+    scene: Any
+    model: Any
+    shader: str
+    aa: int
+
+    def run(self) -> None:
+        from .frames import render_frame
+
+        render_frame(self.scene, self.model.x0.T.copy(), self.model, self.shader, 16, 16,
+                     self.aa)
+
+    def cached(self) -> bool:
+        import shading
+        from shading.shade import fragment_stage
+
+        key = shading.shaders.get_shader(self.shader).stage_key()
+        return any(sig and getattr(sig[-1], "literal_value", None) == key
+                   for sig, *_ in _cache_index(fragment_stage))
+
+
+def _stepping_cached(sim) -> bool:
+    """Whether the integrator's stepping kernel is cached for this scene's System type."""
+    from .integrators import integrator_module
+
+    disp = integrator_module(sim.integrator).advance
+    system_type = disp.typeof_pyval(sim.system)
+    return (any(sig and sig[0] == system_type for sig in disp.overloads)
+            or any(sig and sig[0] == system_type for sig, *_ in _cache_index(disp)))
+
+
+def compile_stepping(sim) -> None:
+    """Compile (or load) the kernels that step `sim`, without changing its state: a copy
+    of its integrator state advances by zero steps."""
+    copy.deepcopy(sim._state).advance(sim.system, 0, sim.step_count)
+
+
+def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool) -> float:
+    """The first-run message's estimate (on this 2-core machine, idle): both processes'
+    simulation shares, then the stepping kernel here while the helper compiles the
+    renderer's; all of it in one process when only one side needs compiling."""
+    mine = sum(HERE[j.name] for j in here)
+    theirs = sum(HELPER[j.name] for j in helper)
+    stepping = STEP_SECONDS if step else 0.0
+    rendering = RENDER_SECONDS if render else 0.0
+    if render and (here or helper or step):
+        return max(max(mine, theirs) + stepping, theirs + rendering)
+    return mine + theirs + stepping + rendering
+
+
+def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = None) -> float:
+    """Compile what the scene's simulation (and `render`, if given) need and numba has not
+    cached, in two processes when both sides need it; `say` gets the first-run message.
+    Returns the seconds spent compiling (0.0 when everything was cached)."""
+    start = time.perf_counter()
+    try:
+        here, helper = sim_jobs(sim.system)
+        here = [j for j in here if not j.cached()]
+        helper = [j for j in helper if not j.cached()]
+        step = not _stepping_cached(sim)
+        render_cold = render is not None and not render.cached()
+    except Exception:  # numba's cache layout changed: compile on first use, as before
+        return 0.0
+    if not (here or helper or step or render_cold):
+        return 0.0
+    if say is not None:
+        seconds = estimate_seconds(here, helper, render_cold, step)
+        say(f"compiling kernels for this machine (first run only, about {seconds:.0f} s)")
+    if render_cold and (here or helper or step):
+        _in_two_processes(sim, here, helper, render)
+    else:
+        for job in here + helper:
+            job.compile()
+        if step:
+            compile_stepping(sim)
+        if render_cold:
+            render.run()
+    return time.perf_counter() - start
+
+
+def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob) -> None:
+    payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], stdin=subprocess.PIPE,
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    try:
+        try:
+            proc.stdin.write(payload)
+            proc.stdin.close()
+        except OSError:  # the helper died at once: do its share here
+            pass
+        for job in here:
+            job.compile()
+        proc.stdout.readline()  # "simulation" once its share is cached (b"" if it died)
+        compile_stepping(sim)
+        proc.wait()
+    except BaseException:
+        proc.kill()
+        proc.wait()
+        raise
+    finally:
+        proc.stdout.close()
+
+
+def _helper_main() -> None:
+    """The helper process: compile the jobs read from stdin, say so, then the renderer's."""
+    helper, render = pickle.loads(sys.stdin.buffer.read())
+    for job in helper:
+        job.compile()
+    sys.stdout.write("simulation\n")
+    sys.stdout.flush()
+    render.run()
+
+
+if __name__ == "__main__":
+    _helper_main()
