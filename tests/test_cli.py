@@ -103,7 +103,8 @@ def _fake_frames(shading):
                                     t4, uv4))
         return out
 
-    def render_frame(scene, positions, model, shader=None, width=None, height=None, aa=None):
+    def render_frame(scene, positions, model, shader=None, width=None, height=None, aa=None,
+                     time=0.0, shot=None):
         shader = shader or scene.render.shader
         if shader not in shading.SHADERS:
             raise ValueError(shader)
