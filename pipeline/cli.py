@@ -212,6 +212,7 @@ class Plan:
     fps: float
     out_times: list[float]  # output frame times (s)
     sim_frames: list[int]  # simulator frame shown by each output frame
+    shot_frames: list[int]  # simulator frames of the whole shot, ascending (the framing's)
     sim_fps: float
     shader: str
     width: int
@@ -259,10 +260,12 @@ def _plan(args, scene) -> Plan:
     n = args.frames if args.frames is not None else max(
         1, round((args.duration if args.duration is not None else DEFAULT_DURATION) * fps))
     times = output_times(n, fps)
+    sim_fps = float(scene.simulation.frames_per_sec)
+    shot = nearest_sim_frames(times, sim_fps)  # a PNG shows a frame of this animation
     if kind == "png":  # one frame: the last output frame, or the one --at names
         times = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
                  else times[-1]]
-    sim_fps = float(scene.simulation.frames_per_sec)
+    sim_frames = nearest_sim_frames(times, sim_fps)
     shader = args.shader if args.shader is not None else scene.render.shader
     try:
         names = _shader_names()
@@ -274,8 +277,9 @@ def _plan(args, scene) -> Plan:
                                                              scene.render.height)
     aa = args.aa if args.aa is not None else scene.render.aa
     return Plan(kind=kind, out=out, fps=fps, out_times=[float(t) for t in times],
-                sim_frames=nearest_sim_frames(times, sim_fps), sim_fps=sim_fps, shader=shader,
-                width=int(width), height=int(height), aa=int(aa))
+                sim_frames=sim_frames, shot_frames=sorted(set(shot) | set(sim_frames)),
+                sim_fps=sim_fps, shader=shader, width=int(width), height=int(height),
+                aa=int(aa))
 
 
 def _overrides(args) -> list[str]:
@@ -384,14 +388,18 @@ def _run(args, err: _Errors) -> int:
             _one_line(message) if str(message).strip() else category.__name__)
         scene = load_scene(args.scene, overrides)
         plan = _plan(args, scene)
+        from .framing import Framing
         from .frames import render_frame, scene_meshes
         from .simulation import Simulation
 
         sim = Simulation(scene)
+        # a scene with no camera is framed over the whole shot: simulated ahead (_ahead)
+        framing = (Framing(plan.width, plan.height)
+                   if scene.camera is None and plan.kind is not None else None)
         writers = _open_writers(plan, args)
         try:
             return _execute(args, err, scene, plan, sim, writers, golden, render_frame,
-                            scene_meshes, t_wall)
+                            scene_meshes, framing, t_wall)
         except BaseException:
             for writer in writers.values():
                 writer.abort()
@@ -399,7 +407,7 @@ def _run(args, err: _Errors) -> int:
 
 
 def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_meshes,
-             t_wall) -> int:
+             framing, t_wall) -> int:
     from .warmup import RenderJob, warm_up
 
     timers = _Timers()
@@ -407,7 +415,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     out_w = writers.get("out")
     obj_w = writers.get("obj")
     npz_w = writers.get("npz")
-    render_kw = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa)
+    render_kw = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa,
+                     shot=framing)
     names = None
 
     def render(pos, t_sim=0.0):
@@ -421,9 +430,10 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     compiled = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
                        say=err.say if show else None)
     # Render the initial state before simulating: a missing texture or a broken shader
-    # fails now, not after the simulation.
+    # fails now, not after the simulation (a framed shot's camera is known only after it:
+    # a small frame then).
     first_img = None
-    needs_first = plan.kind is not None and plan.sim_frames[0] == 0
+    needs_first = plan.kind is not None and plan.sim_frames[0] == 0 and framing is None
     if plan.kind is not None:
         if needs_first:
             first_img = render(sim.positions.copy())
@@ -434,7 +444,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
             timers.render += time.perf_counter() - t0
 
     n_out = len(plan.sim_frames)
-    sim_bar = bar(plan.sim_frames[-1], "simulate", "frame", show, 0)
+    sim_bar = bar(plan.shot_frames[-1] if framing else plan.sim_frames[-1], "simulate",
+                  "frame", show, 0)
     out_bar = bar(n_out, "render", "frame", show, 1)
 
     def consume(k, pos):
@@ -460,13 +471,14 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         out_bar.update(1)
 
     mode = _pipeline_mode(args.pipeline)
+    frames = (_simulate(sim, plan.sim_frames, timers, sim_bar) if framing is None else
+              _ahead(sim, plan, scene, framing, timers, sim_bar))
     try:
         if mode == "serial":
-            for k, pos in _simulate(sim, plan, timers, sim_bar):
+            for k, pos in frames:
                 consume(k, pos)
         else:
-            _pipelined(_simulate(sim, plan, timers, sim_bar), consume,
-                       threads_per_stage=1 if mode == "split" else None)
+            _pipelined(frames, consume, threads_per_stage=1 if mode == "split" else None)
     finally:
         sim_bar.close()
         out_bar.close()
@@ -514,10 +526,11 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     return status
 
 
-def _simulate(sim, plan: Plan, timers: _Timers, sim_bar):
-    """Advance the simulation through the planned frames; yield (k, positions copy)."""
+def _simulate(sim, frames: Sequence[int], timers: _Timers, sim_bar):
+    """Advance the simulation through `frames` (ascending simulator frames); yield
+    (k, positions copy) at each frames[k]."""
     current = 0
-    for k, j in enumerate(plan.sim_frames):
+    for k, j in enumerate(frames):
         while current < j:
             t0 = time.perf_counter()
             sim.advance(1)
@@ -525,6 +538,31 @@ def _simulate(sim, plan: Plan, timers: _Timers, sim_bar):
             current += 1
             sim_bar.update(1)
         yield k, sim.positions.copy()
+
+
+def _ahead(sim, plan: Plan, scene, framing, timers: _Timers, sim_bar):
+    """Simulate the whole shot before anything is drawn: every frame of it goes to
+    `framing` (pipeline.framing), the frames to draw to a temporary file (memory stays
+    flat however long the shot; nothing is left behind). Then yield (k, positions) of the
+    output frames, as _simulate does."""
+    import tempfile
+
+    from .framing import framed_points
+
+    drawn = set(plan.sim_frames)
+    with tempfile.TemporaryFile() as spool:
+        offsets = {}
+        for k, pos in _simulate(sim, plan.shot_frames, timers, sim_bar):
+            j = plan.shot_frames[k]
+            framing.add(framed_points(scene, pos, j / plan.sim_fps))
+            if j in drawn:
+                offsets[j] = spool.tell()
+                spool.write(pos.tobytes())
+        for k, j in enumerate(plan.sim_frames):
+            pos = np.empty(sim.positions.shape)
+            spool.seek(offsets[j])
+            spool.readinto(pos)
+            yield k, pos
 
 
 DEFAULT_PIPELINE = "split"

@@ -1,8 +1,11 @@
 """Frame assembly: scene + cloth positions -> meshes + camera -> image.
 
     meshes = scene_meshes(scene, positions, model, time)  # cloth, then colliders in scene order
-    cam = default_camera(scene, model.initial_positions, 512, 512)
-    img = render_frame(scene, positions, model, time=t)  # (H, W, 3) uint8, scene.render defaults
+    cam = default_camera(scene, model.initial_positions, 512, 512, shot)
+    img = render_frame(scene, positions, model, time=t, shot=shot)  # (H, W, 3) uint8
+
+`shot` (pipeline.framing.Framing) frames the whole shot for a scene with no `camera`;
+without it such a scene is drawn with the course camera (a frame on its own).
 
 `model` is the simulator's cloth model (pipeline.model.ClothModel): nw, nh, spring_a,
 spring_b, spring_enabled, initial_positions. The cloth mesh's `edges` (drawn by the
@@ -13,6 +16,7 @@ keyframed colliders.
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,6 +26,9 @@ from shading import Camera
 from .colliders import collider_pose, euler_matrix
 from .colliders.mesh import collider_mesh_arrays
 from .scene import Box, CameraSettings, MeshCollider, Plane, Scene, Sphere
+
+if TYPE_CHECKING:
+    from .framing import Framing
 
 
 def _edges(model) -> np.ndarray:
@@ -93,12 +100,20 @@ def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:
     return meshes
 
 
-def default_camera(scene: Scene, initial_positions, width: int, height: int) -> Camera:
-    """The scene's camera, or the SPEC 4 default from the initial cloth positions."""
-    cs: CameraSettings | None = scene.camera
-    if cs is not None:
+def default_camera(scene: Scene, initial_positions, width: int, height: int,
+                   shot: Framing | None = None) -> Camera:
+    """The camera of a width x height image of `scene` (SPEC 4): its `camera` object; the
+    course camera for "camera": "course"; for a scene with no camera, the camera framing
+    `shot`, or the course camera when no shot is given."""
+    cs: CameraSettings | str | None = scene.camera
+    if isinstance(cs, CameraSettings):
         return Camera(tuple(cs.position), tuple(cs.target), tuple(cs.up), float(cs.vfov),
                       width=width, height=height)
+    if cs is None and shot is not None:
+        if (shot.width, shot.height) != (width, height):
+            raise ValueError(f"the shot was framed for {shot.width}x{shot.height}, "
+                             f"not {width}x{height}")
+        return shot.camera()
     return Camera.default_for_cloth(initial_positions, scene.cloth.width, scene.cloth.height,
                                     width=width, height=height)
 
@@ -118,13 +133,15 @@ def render_params(scene: Scene, aa: int | None = None) -> dict:
 
 def render_frame(scene: Scene, positions, model, shader: str | None = None,
                  width: int | None = None, height: int | None = None,
-                 aa: int | None = None, time: float = 0.0) -> np.ndarray:
+                 aa: int | None = None, time: float = 0.0,
+                 shot: Framing | None = None) -> np.ndarray:
     """One frame as a new (H, W, 3) uint8 array; None arguments default to scene.render;
-    `time` (s) places keyframed colliders."""
+    `time` (s) places keyframed colliders; `shot` frames a scene with no camera
+    (default_camera)."""
     rs = scene.render
     w = int(width if width is not None else rs.width)
     h = int(height if height is not None else rs.height)
-    cam = default_camera(scene, model.initial_positions, w, h)
+    cam = default_camera(scene, model.initial_positions, w, h, shot)
     meshes = scene_meshes(scene, positions, model, time)
     return shading.render(meshes, cam, scene.light, shader or rs.shader,
                           render_params(scene, aa))

@@ -725,11 +725,12 @@ class Report:
     timings: dict
 
 
-def _renderer(plan: ReportPlan):
+def _renderer(plan: ReportPlan, runs: Sequence[VariantRun]):
     from .frames import render_frame
     from .model import build_model
 
     models = {}
+    shots = frame_shots(plan, runs)
 
     def render(vi: int, sim_frame: int, positions: np.ndarray, shader: str, w: int,
                h: int) -> np.ndarray:
@@ -737,9 +738,25 @@ def _renderer(plan: ReportPlan):
         if vi not in models:
             models[vi] = build_model(v.scene)
         return render_frame(v.scene, positions, models[vi], shader=shader, width=w, height=h,
-                            aa=plan.aa, time=sim_frame / plan.sim_fps)
+                            aa=plan.aa, time=sim_frame / plan.sim_fps, shot=shots[w, h])
 
     return render
+
+
+def frame_shots(plan: ReportPlan, runs: Sequence[VariantRun]) -> dict:
+    """{(width, height): pipeline.framing.Framing} for the cells and the GIF frames: every
+    frame kept of every variant with no camera, so those variants share one view."""
+    from .framing import Framing, framed_points
+
+    sizes = {(plan.width, plan.height), tuple(plan.gif_size)}
+    shots = {size: Framing(*size) for size in sizes}
+    for v, run in zip(plan.variants, runs):
+        if v.scene.camera is None:
+            for j, positions in run.positions.items():
+                points = framed_points(v.scene, positions, j / plan.sim_fps)
+                for framing in shots.values():
+                    framing.add(points)
+    return shots
 
 
 def warm_up(plan: ReportPlan) -> None:
@@ -757,7 +774,7 @@ def warm_up(plan: ReportPlan) -> None:
 
 def build_grids(plan: ReportPlan, runs: Sequence[VariantRun], progress=None) -> list[Grid]:
     """Render every cell of the report (main process; render times measured here)."""
-    render = _renderer(plan)
+    render = _renderer(plan, runs)
     grids = []
     for title, rows, cols, keys in key_grids(plan):
         cells = []
@@ -795,7 +812,7 @@ def build_grids(plan: ReportPlan, runs: Sequence[VariantRun], progress=None) -> 
 def build_gif_frames(plan: ReportPlan, runs: Sequence[VariantRun], progress=None
                      ) -> list[np.ndarray]:
     """The animated grid: one composed image per GIF frame (cells plan.gif_size)."""
-    render = _renderer(plan)
+    render = _renderer(plan, runs)
     gw, gh = plan.gif_size
     layout = key_grids(plan, animated=True)
     grids = [Grid(t, r, c, [[None] * len(c) for _ in r]) for t, r, c, _ in layout]

@@ -28,7 +28,7 @@ from typing import Any
 
 __all__ = [
     "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane", "Box",
-    "MeshCollider", "Keyframe", "Collider", "Wind", "FemMaterial", "MODELS", "SimulationSettings", "CameraSettings", "LightSettings", "RenderSettings",
+    "MeshCollider", "Keyframe", "Collider", "Wind", "FemMaterial", "MODELS", "SimulationSettings", "CameraSettings", "COURSE_CAMERA", "LightSettings", "RenderSettings",
     "Scene", "load_scene", "apply_overrides", "scene_schema",
 ]
 
@@ -194,6 +194,10 @@ class SimulationSettings:
     tolerance_px: float = 1.0  # auto: screen-space error a frame may add
 
 
+#: `"camera": "course"`: the course viewer's camera exactly (SPEC section 4).
+COURSE_CAMERA = "course"
+
+
 @dataclass(frozen=True)
 class CameraSettings:
     """The `camera` block (position and target required when the block is given)."""
@@ -237,7 +241,9 @@ class Scene:
     colliders: tuple[Collider, ...] = ()  # in the order the scene lists them
     wind: Wind | None = None  # None: no air
     simulation: SimulationSettings = SimulationSettings()
-    camera: CameraSettings | None = None  # None: SPEC section 4 default camera
+    #: a camera object; COURSE_CAMERA; None: the course direction framing the whole shot
+    #: (pipeline.framing)
+    camera: CameraSettings | str | None = None
     light: LightSettings = LightSettings()
     render: RenderSettings = RenderSettings()
     source: Path | None = None  # the scene file, when loaded from one
@@ -653,7 +659,7 @@ def _check_semantics(data: dict) -> None:
         raise _Problem(path, f"{_fmt_path(path)}: expected rows of equal length, got rows of "
                              f"{', '.join(str(n) for n in sorted({len(r) for r in rows}))} values")
     cam = data.get("camera")
-    if cam is not None:
+    if isinstance(cam, dict):
         pos, tgt = cam["position"], cam["target"]
         view = [float(t) - float(p) for p, t in zip(pos, tgt)]
         if _norm(view) == 0.0:
@@ -795,9 +801,9 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         tolerance_px=float(s.get("tolerance_px", d.tolerance_px)),
     )
 
-    camera = None
-    if "camera" in data:
-        cam = data["camera"]
+    cam = data.get("camera")
+    camera: CameraSettings | str | None = cam if cam == COURSE_CAMERA else None
+    if isinstance(cam, dict):
         camera = CameraSettings(position=_vec3(cam["position"]), target=_vec3(cam["target"]),
                                 up=_vec3(cam.get("up", CameraSettings.up)),
                                 vfov=float(cam.get("vfov", CameraSettings.vfov)))

@@ -19,7 +19,8 @@ scene.
 Writes renders/<scene>_<shader>.gif (the same GIF writer as `render`) and renders/README.md.
 Each scene is simulated once; its frames are then drawn with every shader. The output frame
 at time t = k / fps shows the simulator frame nearest to t, and keyframed colliders are drawn
-at that frame's time, exactly as `render` does, so `render scenes/<scene>.json --shader
+at that frame's time, and a scene with no camera is framed over the whole GIF
+(pipeline.framing), exactly as `render` does, so `render scenes/<scene>.json --shader
 <shader> --duration <d> --fps 20 --size <n>x<n> --aa 1 --out x.gif` produces the same GIF.
 The total is checked against a budget (12 MB) so the committed gallery stays small.
 """
@@ -59,6 +60,7 @@ def main(argv=None) -> int:
     from pipeline import Simulation, load_scene
     from pipeline.cli import nearest_sim_frames, output_times
     from pipeline.frames import render_frame
+    from pipeline.framing import frame_shot
     from pipeline.outputs import GifWriter
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -109,13 +111,14 @@ def main(argv=None) -> int:
             current = j
             states.append((sim.positions.copy(), j / sim_fps))
         t_sim = time.perf_counter() - t0
+        shot = frame_shot(scene, states, size, size) if scene.camera is None else None
         for shader in shaders:
             t1 = time.perf_counter()
             path = args.out / f"{name}_{shader}.gif"
             with GifWriter(path, fps=args.fps) as gif:
                 for pos, t in states:
                     gif.add(render_frame(scene, pos, sim.model, shader=shader, width=size,
-                                         height=size, aa=1, time=t))
+                                         height=size, aa=1, time=t, shot=shot))
             made[name, shader] = path
             print(f"{path.relative_to(ROOT) if path.is_relative_to(ROOT) else path}: "
                   f"{path.stat().st_size / 1024:.0f} KB "

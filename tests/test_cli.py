@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -102,7 +103,8 @@ def _fake_frames(shading):
                                     t4, uv4))
         return out
 
-    def render_frame(scene, positions, model, shader=None, width=None, height=None, aa=None):
+    def render_frame(scene, positions, model, shader=None, width=None, height=None, aa=None,
+                     time=0.0, shot=None):
         shader = shader or scene.render.shader
         if shader not in shading.SHADERS:
             raise ValueError(shader)
@@ -223,14 +225,19 @@ def test_png_last_and_folder(env, scene, tmp_path, capsys):
     # an existing folder is a folder output too, without the trailing '/'
     assert run(capsys, scene, "--out", folder, *FAST[:2], "--frames", "2", "-q")[0] == 0
     assert files(folder) == ["frame_00000.png", "frame_00001.png"]
-    np.testing.assert_array_equal(np.asarray(Image.open(folder / "frame_00000.png")), first)
+    # a two-frame shot is framed on its own (pipeline.framing): its --at 0 PNG is frame 0
+    assert run(capsys, scene, "--out", png, *FAST[:2], "--frames", "2", "--at", "0", "-q"
+               )[0] == 0
+    np.testing.assert_array_equal(np.asarray(Image.open(folder / "frame_00000.png")),
+                                  np.asarray(Image.open(png)))
 
 
 def test_png_at(env, scene, tmp_path, capsys):
     a = tmp_path / "a.png"
     b = tmp_path / "b.png"
+    """--at T is frame T of the animation the same flags make (one framing: its shot)."""
     assert run(capsys, scene, "--out", a, "--at", "0.08", *FAST)[0] == 0
-    assert run(capsys, scene, "--out", f"{tmp_path}/f/", "--frames", "3", *FAST[:2], "-q")[0] == 0
+    assert run(capsys, scene, "--out", f"{tmp_path}/f/", *FAST)[0] == 0
     np.testing.assert_array_equal(np.asarray(Image.open(a)),
                                   np.asarray(Image.open(tmp_path / "f/frame_00002.png")))
     assert run(capsys, scene, "--out", b, "--at", "0", *FAST)[0] == 0
@@ -282,8 +289,9 @@ def test_summary_line(env, scene, tmp_path, capsys):
     assert out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("render: 5 frames 64x64")
-    for word in ("simulate", "render", "encode", "c.gif", "KB"):
+    for word in ("simulate", "render", "encode", "c.gif"):
         assert word in lines[0]
+    assert re.search(r"c\.gif \(\d+(\.\d)? (B|KB)\);", lines[0])
 
 
 def test_overrides_and_seed(env, scene, tmp_path, capsys):

@@ -1,6 +1,9 @@
 """Image regression: every shader on the sphere and selfCollision scenes at frame 0 and
 frame 60, 256x256, against tests/golden/*.png (PSNR >= 45 dB, <= 0.1% of pixels off by
-more than 8 levels). Bless new goldens with BLESS_GOLDENS=1 (and look at them)."""
+more than 8 levels). Bless new goldens with BLESS_GOLDENS=1 (and look at them).
+
+The scenes are drawn with `"camera": "course"` (SPEC 4's course camera): these goldens
+test the shaders' pixels, not the default framing (tests/test_camera_framing.py)."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -20,7 +23,7 @@ LATER = 60
 
 @pytest.fixture(scope="module", params=["sphere", "selfCollision"])
 def scene_frames(request):
-    scene = load_scene(ROOT / "scenes" / f"{request.param}.json")
+    scene = load_scene(ROOT / "scenes" / f"{request.param}.json", ["camera=course"])
     model = build_model(scene)
     frames = {0: model.initial_positions}
     try:

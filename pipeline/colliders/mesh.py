@@ -36,7 +36,7 @@ _MIN_GRADIENT = 0.5  # Newton steps divide by |gradient|^2, taken at least this 
 
 def pack(obj: MeshCollider, data) -> np.ndarray:
     """The parameter row of `obj`; its distance grid goes to `data`."""
-    grid = _grid(*_key(obj), float(obj.thickness), bool(obj.solid))
+    grid = distance_grid(obj)
     offset = data.add(grid.values)
     return np.array([*grid.header(offset), obj.friction, obj.thickness, float(obj.solid),
                      2.0 * grid.error + 1e-12, _TOLERANCE * obj.thickness * grid.spacing / 4.0])
@@ -45,10 +45,15 @@ def pack(obj: MeshCollider, data) -> np.ndarray:
 def grid_bounds(obj: MeshCollider) -> tuple[np.ndarray, np.ndarray]:
     """(low (3,), high (3,)) corners of the box outside which `obj` acts on nothing (its
     distance grid's nodes, padded by one cell), in its rest frame."""
-    grid = _grid(*_key(obj), float(obj.thickness), bool(obj.solid))
+    grid = distance_grid(obj)
     nz, ny, nx = grid.values.shape
     h = grid.spacing
     return grid.origin - h, grid.origin + h * np.array([nx, ny, nz], dtype=np.float64)
+
+
+def distance_grid(obj: MeshCollider) -> sdf.DistanceGrid:
+    """The signed distance grid of `obj` in its rest frame (built once, cached)."""
+    return _grid(*_key(obj), float(obj.thickness), bool(obj.solid))
 
 
 def collider_mesh_arrays(obj: MeshCollider) -> tuple[np.ndarray, np.ndarray]:
