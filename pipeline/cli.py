@@ -428,7 +428,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     show = progress_enabled(args.quiet)
     # A first run on this machine compiles the kernels, in two processes when it can.
     compiled = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
-                       say=err.say if show else None)
+                       say=err.say if show else None, progress=show)
     # Render the initial state before simulating: a missing texture or a broken shader
     # fails now, not after the simulation (a framed shot's camera is known only after it:
     # a small frame then).

@@ -23,13 +23,30 @@ def progress_enabled(quiet: bool, stream=None) -> bool:
         return False
 
 
+class _Bar:
+    """A tqdm bar that leaves the cursor at column 0 when it closes: tqdm blanks its line
+    but leaves the cursor at the end of the blanks, so the next message began there and
+    wrapped ("...   r" / "ender: 75 frames ...")."""
+
+    def __init__(self, bar) -> None:
+        self._bar = bar
+
+    def update(self, n: int = 1) -> None:
+        self._bar.update(n)
+
+    def close(self) -> None:
+        self._bar.close()
+        sys.stderr.write("\r")
+        sys.stderr.flush()
+
+
 def bar(total: int, desc: str, unit: str, enabled: bool, position: int = 0):
     """A tqdm bar with rate and ETA on stderr, or a no-op bar."""
     if not enabled:
         return _NullBar()
     from tqdm import tqdm
 
-    return tqdm(total=total, desc=desc, unit=unit, position=position, leave=False,
-                file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
-                bar_format="{desc:<9} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} "
-                           "[{elapsed}<{remaining}, {rate_fmt}]")
+    return _Bar(tqdm(total=total, desc=desc, unit=unit, position=position, leave=False,
+                     file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
+                     bar_format="{desc:<9} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} "
+                                "[{elapsed}<{remaining}, {rate_fmt}]"))

@@ -21,11 +21,14 @@ import importlib
 import pickle
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
+
+from .progress import bar
 
 # Kernels compiled in this process / in the helper on a cold start, with their cold compile
 # CPU times in seconds (the README's first command, 2026-11-24), which balance the two and
@@ -140,10 +143,12 @@ def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: boo
     return mine + theirs + stepping + rendering
 
 
-def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = None) -> float:
+def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = None,
+            progress: bool = False) -> float:
     """Compile what the scene's simulation (and `render`, if given) need and numba has not
-    cached, in two processes when both sides need it; `say` gets the first-run message.
-    Returns the seconds spent compiling (0.0 when everything was cached)."""
+    cached, in two processes when both sides need it. `say` gets the first-run message;
+    `progress` shows a bar of the kernels compiled on stderr. Returns the seconds spent
+    compiling (0.0 when everything was cached)."""
     start = time.perf_counter()
     try:
         here, helper = sim_jobs(sim.system)
@@ -158,33 +163,58 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     if say is not None:
         seconds = estimate_seconds(here, helper, render_cold, step)
         say(f"compiling kernels for this machine (first run only, about {seconds:.0f} s)")
-    if render_cold and (here or helper or step):
-        _in_two_processes(sim, here, helper, render)
-    else:
-        for job in here + helper:
-            job.compile()
-        if step:
-            compile_stepping(sim)
-        if render_cold:
-            render.run()
+    total = len(here) + len(helper) + int(step) + int(render_cold)
+    kernels = bar(total, "compile", "kernel", progress, 0)
+    try:
+        if render_cold and (here or helper or step):
+            _in_two_processes(sim, here, helper, render, kernels)
+        else:
+            for job in here + helper:
+                job.compile()
+                kernels.update(1)
+            if step:
+                compile_stepping(sim)
+                kernels.update(1)
+            if render_cold:
+                render.run()
+                kernels.update(1)
+    finally:
+        kernels.close()
     return time.perf_counter() - start
 
 
-def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob) -> None:
+def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob,
+                      kernels) -> None:
+    """Both shares at once; the helper reports each kernel it finishes on its stdout."""
     payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
     proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], stdin=subprocess.PIPE,
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    simulation_ready = threading.Event()
+
+    def follow() -> None:  # the helper's reports, until it ends (or dies)
+        for line in proc.stdout:
+            if line.strip() == SIMULATION_DONE:
+                simulation_ready.set()
+            else:
+                kernels.update(1)
+        simulation_ready.set()
+
+    reader = threading.Thread(target=follow, name="warmup-helper", daemon=True)
+    reader.start()
     try:
         try:
             proc.stdin.write(payload)
             proc.stdin.close()
-        except OSError:  # the helper died at once: do its share here
+        except OSError:  # the helper died at once: its share is compiled below, on use
             pass
         for job in here:
             job.compile()
-        proc.stdout.readline()  # "simulation" once its share is cached (b"" if it died)
+            kernels.update(1)
+        simulation_ready.wait()
         compile_stepping(sim)
+        kernels.update(1)
         proc.wait()
+        reader.join()
     except BaseException:
         proc.kill()
         proc.wait()
@@ -193,14 +223,23 @@ def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob
         proc.stdout.close()
 
 
+SIMULATION_DONE = b"simulation"
+
+
 def _helper_main() -> None:
-    """The helper process: compile the jobs read from stdin, say so, then the renderer's."""
+    """The helper process: compile the jobs read from stdin, one line per kernel, then the
+    renderer's."""
     helper, render = pickle.loads(sys.stdin.buffer.read())
+    out = sys.stdout.buffer
     for job in helper:
         job.compile()
-    sys.stdout.write("simulation\n")
-    sys.stdout.flush()
+        out.write(job.name.encode() + b"\n")
+        out.flush()
+    out.write(SIMULATION_DONE + b"\n")
+    out.flush()
     render.run()
+    out.write(b"render\n")
+    out.flush()
 
 
 if __name__ == "__main__":
