@@ -1,8 +1,10 @@
 """Running a scene: the `Simulation` object and `simulate()`."""
 from __future__ import annotations
 
+import copy
 import math
 import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -106,6 +108,18 @@ class Simulation:
         from .fidelity import make_plan
 
         return make_plan(self)
+
+    # --- kernels -----------------------------------------------------------------------
+    @property
+    def stepping_kernel(self):
+        """The numba kernel that steps this scene: the `advance` of the module that defines
+        its integrator state's advance (symplectic Euler shares Euler's)."""
+        return sys.modules[type(self._state).advance.__module__].advance
+
+    def compile_kernels(self) -> None:
+        """Compile (or load from numba's cache) the kernels that step this scene, without
+        stepping it: a copy of the integrator state advances by zero steps."""
+        copy.deepcopy(self._state).advance(self.system, 0, self.step_count)
 
     # --- stepping ----------------------------------------------------------------------
     def step(self, steps: int = 1) -> None:

@@ -16,7 +16,6 @@ later: a failed helper costs time, never correctness. An interrupted run kills i
 """
 from __future__ import annotations
 
-import copy
 import importlib
 import pickle
 import subprocess
@@ -116,18 +115,10 @@ class RenderJob:
 
 def _stepping_cached(sim) -> bool:
     """Whether the integrator's stepping kernel is cached for this scene's System type."""
-    from .integrators import integrator_module
-
-    disp = integrator_module(sim.integrator).advance
+    disp = sim.stepping_kernel
     system_type = disp.typeof_pyval(sim.system)
     return (any(sig and sig[0] == system_type for sig in disp.overloads)
             or any(sig and sig[0] == system_type for sig, *_ in _cache_index(disp)))
-
-
-def compile_stepping(sim) -> None:
-    """Compile (or load) the kernels that step `sim`, without changing its state: a copy
-    of its integrator state advances by zero steps."""
-    copy.deepcopy(sim._state).advance(sim.system, 0, sim.step_count)
 
 
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool) -> float:
@@ -173,7 +164,7 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
                 job.compile()
                 kernels.update(1)
             if step:
-                compile_stepping(sim)
+                sim.compile_kernels()
                 kernels.update(1)
             if render_cold:
                 render.run()
@@ -211,7 +202,7 @@ def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob
             job.compile()
             kernels.update(1)
         simulation_ready.wait()
-        compile_stepping(sim)
+        sim.compile_kernels()
         kernels.update(1)
         proc.wait()
         reader.join()

@@ -134,7 +134,9 @@ def test_sigterm_while_compiling(scene, tmp_path):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env(NUMBA_CACHE_DIR=str(cache)))
     wait_for(proc, lambda: any(p.is_file() for p in cache.rglob("*")), "compiling")
-    stop(proc, signal.SIGTERM, tmp_path, {"s.json"})
+    # a first run compiles in two processes (pipeline/warmup.py): the helper must go too
+    helper = wait_for(proc, lambda: children(proc.pid), "the compile helper started")
+    stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, helper)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])

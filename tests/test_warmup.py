@@ -1,0 +1,41 @@
+"""The first run on a machine (pipeline/warmup.py): an empty numba cache is filled by
+render and its compile helper together, the output is the same as a warm run's, and the
+next run finds every kernel cached."""
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import cloth_dict, scene_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
+                   spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
+
+
+def _render(scene: Path, out: Path, cache: Path) -> str:
+    env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-m", "pipeline.cli", str(scene), "--out", str(out),
+                        "--size", "24x24", "--duration", "0.2"], env=env, cwd=ROOT,
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr
+    return r.stderr.strip().splitlines()[-1]
+
+
+def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
+    scene = tmp_path / "s.json"
+    scene.write_text(json.dumps(SCENE))
+    cache = tmp_path / "numba"
+    cold = _render(scene, tmp_path / "cold.gif", cache)
+    assert re.search(r"; compile [\d.]+ s, simulate", cold), cold
+    # the helper's share (forces, the renderer's fragment stage) and this process's share
+    # (colliders) are all in the one cache
+    names = {p.name.split("-")[0] for p in cache.rglob("*.nbi")}
+    assert {"forces.total_force", "__init__.collide_all", "shade._fragment_stage",
+            "verlet.advance"} <= names, sorted(names)
+    warm = _render(scene, tmp_path / "warm.gif", cache)
+    assert "compile" not in warm, warm
+    assert (tmp_path / "cold.gif").read_bytes() == (tmp_path / "warm.gif").read_bytes()
