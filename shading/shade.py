@@ -2,22 +2,10 @@
 4-5), numba, cached.
 
 One kernel, `fragment_stage`, is the fragment stage of every shader: for each output row of
-its group it fills the background outside the row's covered span, shades each covered
-sample with the shader's colour function `fragment` (shaders/phong.py), clamps, box filters
-the aa x aa samples and writes 8 bits:
-
-    for y in range(g, f.height, f.groups):           # the rows of group g
-        x0, x1 = begin_row(f, y)                      # background outside [x0, x1)
-        for x in range(x0, x1):
-            c = ZERO
-            for k in range(f.aa * f.aa):
-                s = sample(f, y, x, k)
-                if f.prim[s] < 0:
-                    c = add(c, f.bg)
-                else:
-                    p, n0, v, uv, t, kd = fetch(f, s)
-                    c = add(c, fragment(p, n0, ...))   # the shader's colour
-            put(f, y, x, c)
+its group (`begin_row` fills the background outside the row's covered span), each covered
+sample (`sample`, `fetch`) is shaded by the shader's colour function `fragment`
+(shaders/phong.py), clamped and summed (`add`), and each pixel's aa x aa samples are box
+filtered to 8 bits (`put`).
 
 The shader is an argument, a `ShaderKey`: an int that numba types as its literal value, so
 numba compiles the kernel once per shader with that shader's fragment inlined (as if each
