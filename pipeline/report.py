@@ -397,17 +397,12 @@ def simulate_variant(scene_path: str, overrides: Sequence[str], frames: Sequence
     copy of the positions at each frame in `frames`. Runs in a worker process for sweeps:
     every argument and the result are picklable. `threads`: numba threads to use here
     (restored afterwards); the results do not depend on it."""
-    restore = None
-    if threads is not None:
-        import numba
-
-        restore = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    try:
+    if threads is None:
         return _simulate(scene_path, overrides, frames, on_frame)
-    finally:
-        if restore is not None:
-            numba.set_num_threads(restore)
+    from .simulation import numba_threads
+
+    with numba_threads(threads):
+        return _simulate(scene_path, overrides, frames, on_frame)
 
 
 def _simulate(scene_path, overrides, frames, on_frame) -> VariantRun:
