@@ -14,6 +14,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import signal
+import threading
 from collections.abc import Iterator
 
 import distributed
@@ -33,13 +35,21 @@ class ClusterError(UsageError):
 
 
 class WorkerSetup(WorkerPlugin):
-    """Runs in each worker process when it starts: takes the numba cache lock."""
+    """Runs in each worker process when it starts: takes the numba cache lock. `local`:
+    the worker belongs to our LocalCluster, in the terminal's process group; it ignores
+    SIGINT, which the client handles by closing the cluster (a Ctrl-C would otherwise
+    also stop each worker with a traceback)."""
 
     idempotent = True
     name = "clothpipe-setup"
 
+    def __init__(self, local: bool):
+        self.local = local
+
     def setup(self, worker) -> None:
         compile_lock.install()
+        if self.local and threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def _probe(address: str, timeout: float) -> None:
@@ -87,7 +97,7 @@ def connect(args) -> Iterator[distributed.Client]:
             local.close()
         raise ClusterError(f"cannot start or reach the Dask cluster: {_reason(exc)}") from None
     try:
-        client.register_plugin(WorkerSetup())
+        client.register_plugin(WorkerSetup(local is not None))
         yield client
     finally:
         client.close()
