@@ -189,8 +189,7 @@ def add_cluster_options(p: argparse.ArgumentParser) -> None:
 
 def cluster_requested(args) -> bool:
     """True when --workers or --scheduler was given (only then is `distributed` imported)."""
-    return (getattr(args, "workers", None) is not None
-            or getattr(args, "scheduler", None) is not None)
+    return args.workers is not None or args.scheduler is not None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -309,8 +308,8 @@ def frame_times(args, kind: str | None) -> list[Fraction]:
         1, round((args.duration if args.duration is not None else DEFAULT_DURATION) * fps))
     times = output_times(n, fps)
     if kind == "png":  # one frame: the last output frame, or the one --at names
-        times = [Fraction(args.at).limit_denominator(1000000) if getattr(args, "at", None)
-                 is not None else times[-1]]
+        times = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
+                 else times[-1]]
     return times
 
 
