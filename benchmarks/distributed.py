@@ -13,8 +13,10 @@ bound it sets (Amdahl).
    one after the other (round trip).
 3. A long render (scenes/sphere.json, 1920x1080, --aa 4, 1 s at 30 fps): simulation, render
    and PNG encoding timed apart on one thread; the simulation's share s of the one-process
-   work and Amdahl's bound 1 / (s + (1 - s) / N) for N workers; then the same render with
-   `--workers 2` against one process, measured.
+   work and Amdahl's bound 1 / (s + (1 - s) / N) for N workers; then the same command in
+   one process, on the running cluster (--scheduler) and with --workers 2, measured.
+Wall times depend on what else the machine runs; CPU seconds (this process, its children
+and the workers) show the work each way costs.
 """
 from __future__ import annotations
 
@@ -40,16 +42,41 @@ def noop(x):
     return x
 
 
-def batch_seconds(args, scenes, options) -> float:
+def cpu_seconds(pids=()) -> float:
+    """CPU time (user + system) of this process, its reaped children and `pids`."""
+    import resource
+
+    import psutil
+
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    total = time.process_time() + kids.ru_utime + kids.ru_stime
+    for pid in pids:
+        t = psutil.Process(pid).cpu_times()
+        total += t.user + t.system
+    return total
+
+
+def measured(run, pids=()) -> tuple[float, float]:
+    """(wall seconds, CPU seconds of this process, its children and `pids`) of run()."""
+    c0, t0 = cpu_seconds(pids), time.perf_counter()
+    run()
+    return time.perf_counter() - t0, cpu_seconds(pids) - c0
+
+
+def load() -> str:
+    return f"{os.getloadavg()[0]:.2f}"
+
+
+def run_batch(args, scenes, options) -> float:
+    """Run the batch; the mean seconds a scene took where it ran (its task's own time)."""
     from pipeline import batch
 
-    t0 = time.perf_counter()
     results = [r for _, r in batch.run_batch(args, scenes, options)]
     assert all(r.status == "ok" for r in results), [r.message for r in results]
-    return time.perf_counter() - t0
+    return sum(r.seconds for r in results) / len(results)
 
 
-def batch_figures(folder: Path, address: str, rounds: int) -> None:
+def batch_figures(folder: Path, address: str, pids: list[int], rounds: int) -> None:
     from pipeline import batch
 
     base = json.loads((ROOT / "scenes" / "sphere.json").read_text())
@@ -66,37 +93,43 @@ def batch_figures(folder: Path, address: str, rounds: int) -> None:
     options = {k: getattr(parsed, k) for k in batch._cli.RENDER_OPTIONS}
     serial = SimpleNamespace(format="gif", workers=None, scheduler=None)
     dask = SimpleNamespace(format="gif", workers=None, scheduler=address)
-    batch_seconds(serial, scenes[:1], options)  # kernels loaded here
-    batch_seconds(dask, scenes[:2], options)  # and in both workers
+    from pipeline.scene import SceneFile
+
+    run_batch(serial, scenes[:1], options)  # kernels loaded here
+    run_batch(dask, scenes[:2], options)  # and in both workers
 
     def one_thread() -> float:
-        from pipeline.simulation import numba_threads
+        results = [batch.render_scene(SceneFile.read(p), "gif", options, one_thread=True)
+                   for p in scenes]
+        assert all(r.status == "ok" for r in results)
+        return sum(r.seconds for r in results) / len(results)
 
-        t0 = time.perf_counter()
-        for path in scenes:
-            from pipeline.scene import SceneFile
-
-            r = batch.render_scene(SceneFile.read(path), "gif", options, one_thread=True)
-            assert r.status == "ok", r.message
-        return time.perf_counter() - t0
-
-    times = {"serial": [], "one thread": [], "dask": []}
+    runs = {"serial": lambda: run_batch(serial, scenes, options), "one thread": one_thread,
+            "dask": lambda: run_batch(dask, scenes, options)}
+    times: dict[str, list[tuple[float, float]]] = {k: [] for k in runs}
+    inside: dict[str, list[float]] = {k: [] for k in runs}
+    loads = [load()]
     for _ in range(rounds):
-        times["serial"].append(batch_seconds(serial, scenes, options))
-        times["one thread"].append(one_thread())
-        times["dask"].append(batch_seconds(dask, scenes, options))
+        for name, run in runs.items():
+            times[name].append(measured(lambda: inside[name].append(run()), pids))
+            loads.append(load())
     best = {k: min(v) for k, v in times.items()}
     print(f"\n## Batch: 8 variants of sphere.json (cloth.ks {KS[0]}..{KS[-1]}), 256x256 GIF, "
           f"2 s at 25 fps (best of {rounds}, runs alternated)\n")
-    print("| run | seconds | per scene | speed-up of 2 workers |")
-    print("|---|---:|---:|---:|")
+    print("| run | wall s | CPU s (client + workers) | a scene inside its task, s | "
+          "2 workers' speed-up |")
+    print("|---|---:|---:|---:|---:|")
     for name, label in (("serial", "this process, as `render` (2 threads)"),
                         ("one thread", "this process, one numba thread"),
                         ("dask", "2 local Dask workers (1 thread each)")):
-        ratio = "" if name == "dask" else f"{best[name] / best['dask']:.2f}x"
-        print(f"| {label} | {best[name]:.2f} | {best[name] / len(KS):.2f} | {ratio} |")
-    print(f"\nall runs (s): " + "; ".join(f"{k}: {', '.join(f'{t:.2f}' for t in v)}"
-                                       for k, v in times.items()))
+        wall, cpu = best[name]
+        ratio = "" if name == "dask" else f"{wall / best['dask'][0]:.2f}x"
+        print(f"| {label} | {wall:.2f} | {cpu:.2f} | {min(inside[name]):.2f} | {ratio} |")
+    print("\n(a scene inside its task: the mean time one scene took where it ran, best run; "
+          "on the workers it grows when the two of them do not each get a core)")
+    print("\nall runs (wall s / CPU s): " + "; ".join(
+        f"{k}: {', '.join(f'{w:.2f}/{c:.2f}' for w, c in v)}" for k, v in times.items()))
+    print(f"load average (1 min) before and after each run: {', '.join(loads)}")
 
 
 def task_overhead(client, n: int = 200) -> None:
@@ -112,7 +145,7 @@ def task_overhead(client, n: int = 200) -> None:
     print(f"- one after the other (submit, wait for the result): {trip * 1000:.2f} ms per task")
 
 
-def long_render(folder: Path, rounds: int) -> None:
+def long_render(folder: Path, address: str, pids: list[int], rounds: int) -> None:
     import numpy as np
 
     from pipeline import cli
@@ -167,18 +200,30 @@ def long_render(folder: Path, rounds: int) -> None:
 
     flags = [str(scene_path), "--size", f"{w}x{h}", "--aa", str(aa), "--duration",
              str(seconds), "--fps", str(fps), "--quiet"]
-    measured = {"one process": [], "2 local workers": []}
+    variants = {"one process (`render`, its default 2 threads)": [],
+                "`--scheduler`: the 2 running workers, kernels loaded": ["--scheduler", address],
+                "`--workers 2`: a new LocalCluster (start-up, kernels loaded)": ["--workers", "2"]}
+    runs: dict[str, list[tuple[float, float]]] = {k: [] for k in variants}
+    loads = [load()]
     for _ in range(rounds):
-        for name, extra in (("one process", []), ("2 local workers", ["--workers", "2"])):
+        for name, extra in variants.items():
             out = folder / "shot"
-            t0 = time.perf_counter()
-            assert cli.main(flags + ["--out", f"{out}/"] + extra) == 0
-            measured[name].append(time.perf_counter() - t0)
+
+            def shot(extra=extra, out=out):
+                assert cli.main(flags + ["--out", f"{out}/"] + extra) == 0
+
+            runs[name].append(measured(shot, pids))
             shutil.rmtree(out)
-    one, two = min(measured["one process"]), min(measured["2 local workers"])
-    print(f"\nMeasured, the whole command (`render ... --out frames/`, best of {rounds}): one "
-          f"process {one:.2f} s, `--workers 2` {two:.2f} s (cluster start-up included): "
-          f"{one / two:.2f}x")
+            loads.append(load())
+    print(f"\nMeasured, the whole command `render ... --out frames/` (best of {rounds}, "
+          "alternated):\n")
+    print("| run | wall s | CPU s (client + workers) | speed-up |")
+    print("|---|---:|---:|---:|")
+    first = min(runs[next(iter(runs))])[0]
+    for name, values in runs.items():
+        wall, cpu = min(values)
+        print(f"| {name} | {wall:.2f} | {cpu:.2f} | {first / wall:.2f}x |")
+    print(f"\nload average (1 min) before and after each run: {', '.join(loads)}")
 
 
 def main() -> None:
@@ -197,9 +242,10 @@ def main() -> None:
                 Client(cluster, set_as_default=False) as client:
             print(f"\nLocalCluster of 2 worker processes started in "
                   f"{time.perf_counter() - t0:.2f} s")
-            batch_figures(folder, cluster.scheduler_address, args.rounds)
+            pids = list(client.run(os.getpid).values())
+            batch_figures(folder, cluster.scheduler_address, pids, args.rounds)
             task_overhead(client)
-        long_render(folder, args.rounds)
+            long_render(folder, cluster.scheduler_address, pids, args.rounds)
 
 
 if __name__ == "__main__":

@@ -112,14 +112,17 @@ def simulate_shot(shot: Shot) -> SimResult:
     with warnings.catch_warnings(record=True) as caught, numba_threads(1):
         warnings.simplefilter("always")
         sim = Simulation(load_scene(shot.scene, list(shot.overrides)))
+        seconds = time.perf_counter() - t0  # simulating only, not waiting for the client
         current = 0
         for k, frames in enumerate(shot.chunks()):
+            t0 = time.perf_counter()
             positions = []
             for i in frames:
                 if current < shot.sim_frames[i]:
                     sim.advance(shot.sim_frames[i] - current)
                     current = shot.sim_frames[i]
                 positions.append(sim.positions.copy())
+            seconds += time.perf_counter() - t0
             times = [shot.sim_frames[i] / shot.sim_fps for i in frames]
             future = client.submit(render_chunk, shot.scene, shot.overrides, shot.view, times,
                                    np.stack(positions), key=shot.key(k))
@@ -127,8 +130,8 @@ def simulate_shot(shot: Shot) -> SimResult:
                 break
             queue.put(future)
     notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
-    return SimResult(time.perf_counter() - t0,
-                     [str(w.message).splitlines()[0] for w in caught if str(w.message)], notes)
+    return SimResult(seconds, [str(w.message).splitlines()[0] for w in caught if str(w.message)],
+                     notes)
 
 
 def _wait_for_room(queue, depth: int, stop) -> bool:
