@@ -35,7 +35,9 @@ DEFAULT_DURATION = 3.0
 
 
 class UsageError(ValueError):
-    """A bad command line (exit status 2)."""
+    """A bad command line (exit status 2); the message is followed by a pointer to --help."""
+
+    help_hint = True
 
 
 # --------------------------------------------------------------------------- parsing
@@ -120,6 +122,76 @@ def _override(text):
     return text
 
 
+def _scheduler_address(text):
+    """tcp://HOST:PORT (the scheme may be left out; tls:// is kept)."""
+    from urllib.parse import urlsplit
+
+    addr = text if "://" in text else f"tcp://{text}"
+    try:
+        parts = urlsplit(addr)
+        ok = (parts.scheme in ("tcp", "tls") and bool(parts.hostname)
+              and parts.port is not None and parts.path in ("", "/"))
+    except ValueError:
+        ok = False
+    if not ok:
+        raise argparse.ArgumentTypeError(f"expected tcp://HOST:PORT, got {text!r}")
+    return addr.rstrip("/")
+
+
+def add_render_options(p: argparse.ArgumentParser, shaders: str) -> None:
+    """The options that say what to render, shared by `render` and `render batch`."""
+    p.add_argument("--shader", "-s", metavar="NAME",
+                   help=f"shader (default: the scene's render.shader, else phong): {shaders}")
+    length = p.add_mutually_exclusive_group()
+    length.add_argument("--duration", "-d", type=_positive_float("duration"), metavar="S",
+                        help=f"seconds of animation (default {DEFAULT_DURATION:g})")
+    length.add_argument("--frames", "-n", type=_positive_int, metavar="N",
+                        help="number of output frames (instead of --duration)")
+    p.add_argument("--fps", type=_positive_float("fps"), metavar="F",
+                   help="output frame rate (default 25 for GIF, PNG and folders; 30 for MP4; "
+                        "at most 50 for GIF)")
+    p.add_argument("--size", type=_size, metavar="WxH",
+                   help="image size in pixels (default: the scene's render size, 512x512)")
+    p.add_argument("--aa", type=_positive_int, metavar="N",
+                   help="anti-aliasing: N x N samples per pixel (default: the scene's, 1)")
+    p.add_argument("--seed", type=_int, metavar="N",
+                   help="random seed (same as --set simulation.seed=N)")
+    p.add_argument("--integrator", metavar="NAME",
+                   help="integrator (same as --set simulation.integrator=NAME)")
+    p.add_argument("--fidelity", choices=("exact", "auto"),
+                   help="exact (default): every step as the scene says; auto: model no more "
+                        "than the scene needs, within --tolerance pixels per frame (same as "
+                        "--set simulation.fidelity=...; see 'render plan')")
+    p.add_argument("--tolerance", type=_positive_float("tolerance"), metavar="PX",
+                   help="with --fidelity auto: the error in pixels a frame may add (default 1; "
+                        "same as --set simulation.tolerance_px=PX)")
+    p.add_argument("--set", dest="overrides", action="append", default=[], type=_override,
+                   metavar="KEY=VALUE",
+                   help="override a scene value, e.g. --set cloth.ks=8000 --set "
+                        "sphere.0.radius=0.3 (repeatable; VALUE is JSON, else a string)")
+
+
+#: The destinations of `add_render_options` (what `render batch` hands each scene's run).
+RENDER_OPTIONS = ("shader", "duration", "frames", "fps", "size", "aa", "seed", "integrator",
+                  "fidelity", "tolerance", "overrides")
+
+
+def add_cluster_options(p: argparse.ArgumentParser) -> None:
+    """--workers N | --scheduler ADDR: run on Dask distributed (docs/distributed.md)."""
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--workers", type=_positive_int, metavar="N",
+                   help="run on N Dask worker processes started on this machine (a "
+                        "distributed.LocalCluster, closed at the end)")
+    g.add_argument("--scheduler", type=_scheduler_address, metavar="tcp://HOST:PORT",
+                   help="run on the Dask cluster whose scheduler listens at this address "
+                        "(started with 'dask scheduler'; see docs/distributed.md)")
+
+
+def cluster_requested(args) -> bool:
+    """True when --workers or --scheduler was given (only then is `distributed` imported)."""
+    return args.workers is not None or args.scheduler is not None
+
+
 def build_parser() -> argparse.ArgumentParser:
     try:
         shaders = ", ".join(_shader_names())
@@ -142,7 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
             "Exit status: 0 ok, 1 internal failure, diverging simulation or an output that "
             "cannot be written (full disk), 2 bad input, 3 --check beyond tolerance, "
             "130 / 143 / 129 stopped by SIGINT / SIGTERM / SIGHUP (nothing is left behind).",
-            "Subcommands: 'render report SCENE.json --out report.html' compares shaders and "
+            "With --workers N or --scheduler ADDR the simulation runs as one Dask task and "
+            "the frames are rasterised in chunks by the workers (docs/distributed.md).",
+            "Subcommands: 'render batch A.json B.json --out-dir OUT' renders many scenes; "
+            "'render report SCENE.json --out report.html' compares shaders and "
             "parameter sweeps side by side (also reached with --shader all or an .html "
             "output; see 'render report --help'); 'render bench SCENE.json --out DIR' charts "
             "the integrators' accuracy against speed and their stability limits; 'render plan "
@@ -153,38 +228,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("scene", metavar="SCENE.json", help="scene file (JSON)")
     p.add_argument("--out", "-o", metavar="PATH",
                    help="output: NAME.gif, NAME.mp4, NAME.png or DIR/ (numbered PNGs)")
-    p.add_argument("--shader", "-s", metavar="NAME",
-                   help=f"shader (default: the scene's render.shader, else phong): {shaders}")
-    length = p.add_mutually_exclusive_group()
-    length.add_argument("--duration", "-d", type=_positive_float("duration"), metavar="S",
-                        help=f"seconds of animation (default {DEFAULT_DURATION:g})")
-    length.add_argument("--frames", "-n", type=_positive_int, metavar="N",
-                        help="number of output frames (instead of --duration)")
-    p.add_argument("--fps", type=_positive_float("fps"), metavar="F",
-                   help="output frame rate (default 25 for GIF, PNG and folders; 30 for MP4; "
-                        "at most 50 for GIF)")
+    add_render_options(p, shaders)
     p.add_argument("--at", type=_nonneg_float, metavar="S",
                    help="with a .png output: the time in seconds of the frame to write "
                         "(default: the last output frame)")
-    p.add_argument("--size", type=_size, metavar="WxH",
-                   help="image size in pixels (default: the scene's render size, 512x512)")
-    p.add_argument("--aa", type=_positive_int, metavar="N",
-                   help="anti-aliasing: N x N samples per pixel (default: the scene's, 1)")
-    p.add_argument("--seed", type=_int, metavar="N",
-                   help="random seed (same as --set simulation.seed=N)")
-    p.add_argument("--integrator", metavar="NAME",
-                   help="integrator (same as --set simulation.integrator=NAME)")
-    p.add_argument("--fidelity", choices=("exact", "auto"),
-                   help="exact (default): every step as the scene says; auto: model no more "
-                        "than the scene needs, within --tolerance pixels per frame (same as "
-                        "--set simulation.fidelity=...; see 'render plan')")
-    p.add_argument("--tolerance", type=_positive_float("tolerance"), metavar="PX",
-                   help="with --fidelity auto: the error in pixels a frame may add (default 1; "
-                        "same as --set simulation.tolerance_px=PX)")
-    p.add_argument("--set", dest="overrides", action="append", default=[], type=_override,
-                   metavar="KEY=VALUE",
-                   help="override a scene value, e.g. --set cloth.ks=8000 --set "
-                        "sphere.0.radius=0.3 (repeatable; VALUE is JSON, else a string)")
     p.add_argument("--export-obj", metavar="DIR",
                    help="also write one OBJ per output frame into DIR (an 'o' group per object)")
     p.add_argument("--export-npz", metavar="FILE",
@@ -195,6 +242,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no progress bars, warnings or summary line")
     p.add_argument("--debug", action="store_true", help="show tracebacks on errors")
+    add_cluster_options(p)
     # Benchmarking switch (hidden): how simulation and rendering share the cores.
     p.add_argument("--pipeline", choices=("auto", "serial", "overlap", "split"), default="auto",
                    help=argparse.SUPPRESS)
@@ -254,25 +302,32 @@ def _output_kind(args) -> tuple[str | None, Path | None]:
     return kind, out
 
 
-def _plan(args, scene) -> Plan:
-    kind, out = _output_kind(args)
+def animation_times(args, kind: str | None) -> list[Fraction]:
+    """The times (s) of every frame of the animation args describe (a PNG shows one)."""
     fps = args.fps if args.fps is not None else DEFAULT_FPS[kind]
     n = args.frames if args.frames is not None else max(
         1, round((args.duration if args.duration is not None else DEFAULT_DURATION) * fps))
-    times = output_times(n, fps)
-    sim_fps = float(scene.simulation.frames_per_sec)
-    shot = nearest_sim_frames(times, sim_fps)  # a PNG shows a frame of this animation
+    return output_times(n, fps)
+
+
+def frame_times(args, kind: str | None) -> list[Fraction]:
+    """The output frames' times (s) that args ask for, for an output of `kind`."""
+    times = animation_times(args, kind)
     if kind == "png":  # one frame: the last output frame, or the one --at names
         times = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
                  else times[-1]]
+    return times
+
+
+def _plan(args, scene) -> Plan:
+    kind, out = _output_kind(args)
+    fps = args.fps if args.fps is not None else DEFAULT_FPS[kind]
+    times = frame_times(args, kind)
+    sim_fps = float(scene.simulation.frames_per_sec)
+    shot = nearest_sim_frames(animation_times(args, kind), sim_fps)
     sim_frames = nearest_sim_frames(times, sim_fps)
     shader = args.shader if args.shader is not None else scene.render.shader
-    try:
-        names = _shader_names()
-    except Exception:  # noqa: BLE001 - the renderer is needed anyway: fail later, loudly
-        names = None
-    if names is not None and shader not in names:
-        raise UsageError(f"unknown shader {shader!r} (choose from: {', '.join(names)})")
+    check_shader(shader)
     width, height = args.size if args.size is not None else (scene.render.width,
                                                              scene.render.height)
     aa = args.aa if args.aa is not None else scene.render.aa
@@ -282,7 +337,18 @@ def _plan(args, scene) -> Plan:
                 aa=int(aa))
 
 
-def _overrides(args) -> list[str]:
+def check_shader(shader: str) -> None:
+    """UsageError for a shader name that does not exist."""
+    try:
+        names = _shader_names()
+    except Exception:  # noqa: BLE001 - the renderer is needed anyway: fail later, loudly
+        return
+    if shader not in names:
+        raise UsageError(f"unknown shader {shader!r} (choose from: {', '.join(names)})")
+
+
+def scene_overrides(args) -> list[str]:
+    """--set, --seed, --integrator, --fidelity, --tolerance and --size as scene overrides."""
     ov = list(args.overrides)
     if args.seed is not None:
         ov.append(f"simulation.seed={args.seed}")
@@ -334,6 +400,7 @@ def _fmt_bytes(n: int) -> str:
 
 class _Timers:
     def __init__(self):
+        self.compile = 0.0  # a first run's kernel compiling (pipeline.warmup)
         self.simulate = 0.0
         self.render = 0.0
         self.encode = 0.0
@@ -374,32 +441,47 @@ def _read_golden(path: str) -> np.ndarray:
         raise UsageError(f"--check: cannot read '{path}' as an image ({exc})") from None
 
 
-def _run(args, err: _Errors) -> int:
+def run(args, err: _Errors, source=None) -> int:
+    """Render for parsed `args`; returns 0, or 3 after a failed --check, and raises on
+    failure (`failure` gives the exit status and message). `source` is the scene when it
+    is not read from args.scene (a `SceneFile`, as `render batch` ships it). With
+    --workers / --scheduler the frames are rendered on Dask (pipeline.farm)."""
     t_wall = time.perf_counter()
-    from .scene import load_scene
+    from .scene import SceneFile, load_scene
 
     _output_kind(args)
+    on_cluster = cluster_requested(args)
+    if on_cluster and (args.export_obj or args.export_npz):
+        raise UsageError("--export-obj and --export-npz are not available with --workers or "
+                         "--scheduler")
     golden = _read_golden(args.check) if args.check else None
-    overrides = _overrides(args)
+    overrides = scene_overrides(args)
     with warnings.catch_warnings():
         # Python warnings (e.g. StabilityWarning) become one line "render: warning: ...".
         warnings.simplefilter("default")
         warnings.showwarning = lambda message, category, *a, **k: err.warn(
             _one_line(message) if str(message).strip() else category.__name__)
-        scene = load_scene(args.scene, overrides)
+        if source is None:
+            source = SceneFile.read(args.scene) if on_cluster else args.scene
+        scene = load_scene(source, overrides)
         plan = _plan(args, scene)
         from .framing import Framing
-        from .frames import render_frame, scene_meshes
-        from .simulation import Simulation
 
-        sim = Simulation(scene)
         # a scene with no camera is framed over the whole shot: simulated ahead (_ahead)
         framing = (Framing(plan.width, plan.height)
                    if scene.camera is None and plan.kind is not None else None)
         writers = _open_writers(plan, args)
         try:
-            return _execute(args, err, scene, plan, sim, writers, golden, render_frame,
-                            scene_meshes, framing, t_wall)
+            if on_cluster:
+                from . import farm
+
+                return farm.execute(args, err, source, overrides, plan, writers, golden,
+                                    framing, t_wall)
+            from .frames import render_frame, scene_meshes
+            from .simulation import Simulation
+
+            return _execute(args, err, scene, plan, Simulation(scene), writers, golden,
+                            render_frame, scene_meshes, framing, t_wall)
         except BaseException:
             for writer in writers.values():
                 writer.abort()
@@ -427,8 +509,9 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     show = progress_enabled(args.quiet)
     # A first run on this machine compiles the kernels, in two processes when it can.
-    compiled = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
-                       say=err.say if show else None, progress=show)
+    timers.compile = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa)
+                             if plan.kind else None, say=err.say if show else None,
+                             progress=show)
     # Render the initial state before simulating: a missing texture or a broken shader
     # fails now, not after the simulation (a framed shot's camera is known only after it:
     # a small frame then).
@@ -497,10 +580,20 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
             fps=np.float64(plan.fps), sim_fps=np.float64(plan.sim_fps),
             steps_per_frame=np.int64(spf),
         )
+    timers.encode += time.perf_counter() - t0
+    notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
+    return finish(args, err, plan, writers, golden, timers, t_wall, notes)
+
+
+def finish(args, err: _Errors, plan: Plan, writers: dict, golden, timers: _Timers,
+           t_wall: float, notes: Sequence[str] = ()) -> int:
+    """Commit every output, then --check, the H.264 padding warning, the summary line and
+    `notes` (lines after it); returns 0 or 3 (--check beyond tolerance)."""
+    t0 = time.perf_counter()
     for writer in writers.values():
         writer.commit()
     timers.encode += time.perf_counter() - t0
-
+    out_w = writers.get("out")
     status = 0
     if golden is not None:
         status = _check(args, err, out_w, golden)
@@ -516,13 +609,14 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         for key in ("obj", "npz"):
             if key in writers:
                 what.append(f"{writers[key].target} ({_fmt_bytes(writers[key].nbytes)})")
+        n_out = len(plan.sim_frames)
         size = f" {plan.width}x{plan.height} {plan.shader}" if out_w is not None else ""
-        compile_text = f"compile {compiled:.2f} s, " if compiled else ""
+        compile_text = f"compile {timers.compile:.2f} s, " if timers.compile else ""
         err.say(f"{n_out} frame{'s' if n_out != 1 else ''}{size} -> {', '.join(what)}; "
                 f"{compile_text}simulate {timers.simulate:.2f} s, render {timers.render:.2f} s, "
                 f"encode {timers.encode:.2f} s, total {time.perf_counter() - t_wall:.2f} s")
-        if sim.stepper is not None:
-            err.say(sim.stepper.summary_text())
+        for line in notes:
+            err.say(line)
     return status
 
 
@@ -705,6 +799,7 @@ SUBCOMMANDS = {  # `render NAME ...` runs the module's main(argv)
     "report": "pipeline.report",  # shaders and parameter sweeps side by side (HTML + PNG)
     "bench": "pipeline.bench",  # integrators: work-precision and stability charts
     "plan": "pipeline.plan",  # what fidelity exact or auto will model, and why
+    "batch": "pipeline.batch",  # many scenes, one output each (optionally on Dask)
 }
 
 
@@ -749,10 +844,10 @@ def _run_subcommand(name: str, argv: Sequence[str]) -> int:
         return signals.exit_status(exc)
 
 
-def interrupted_message(exc: KeyboardInterrupt) -> str:
+def interrupted_message(exc: KeyboardInterrupt, outcome: str = "no output written") -> str:
     """'interrupted (SIGTERM); no output written'."""
     name = str(exc) if isinstance(exc, signals.Terminated) else "SIGINT"
-    return f"interrupted ({name}); no output written"
+    return f"interrupted ({name}); {outcome}"
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -780,36 +875,40 @@ def _main(argv: Sequence[str] | None) -> int:
     except SystemExit as exc:  # --help, --version
         return int(exc.code or 0)
     err.quiet = args.quiet
+    try:
+        return run(args, err)
+    except (Exception, KeyboardInterrupt) as exc:
+        if args.debug:
+            traceback.print_exc(file=stderr)
+        status, msg = failure(exc)
+        if msg.startswith("internal error") and not args.debug:
+            msg += f"\n{PROG}: run with --debug for the traceback"
+        err.say(msg)
+        return status
 
+
+def failure(exc: BaseException) -> tuple[int, str]:
+    """The exit status and message (one line, two for a bad command line) for an exception
+    out of a run: 2 bad input, 1 divergence, a write error or an internal failure,
+    128 + N stopped by signal N."""
     from .scene import SceneError
     from .simulation import DivergenceError
 
     try:
         from shading import TextureError
     except Exception:  # noqa: BLE001
-        TextureError = OutputError  # noqa: N806 - never raised, keeps the except clause valid
-
-    def fail(status: int, msg: str) -> int:
-        if args.debug:
-            traceback.print_exc(file=stderr)
-        err.say(msg)
-        return status
-
-    try:
-        return _run(args, err)
-    except UsageError as exc:
-        return fail(2, f"{exc}\n{PROG}: try 'render --help'")
-    except (SceneError, OutputError, TextureError) as exc:
-        return fail(2, _one_line(exc))
-    except (DivergenceError, WriteError) as exc:
-        return fail(1, _one_line(exc))
-    except KeyboardInterrupt as exc:
-        return fail(signals.exit_status(exc), interrupted_message(exc))
-    except MemoryError:
-        return fail(1, "out of memory; try a smaller --size, --aa or fewer frames")
-    except Exception as exc:  # noqa: BLE001 - the last line of defence
-        hint = "" if args.debug else f"\n{PROG}: run with --debug for the traceback"
-        return fail(1, f"internal error: {type(exc).__name__}: {_one_line(exc)}{hint}")
+        TextureError = OutputError  # noqa: N806 - never raised, keeps isinstance valid
+    if isinstance(exc, UsageError):
+        return 2, str(exc) + (f"\n{PROG}: try 'render --help'" if exc.help_hint else "")
+    if isinstance(exc, (SceneError, OutputError, TextureError)):
+        return 2, _one_line(exc)
+    if isinstance(exc, (DivergenceError, WriteError)):
+        return 1, _one_line(exc)
+    if isinstance(exc, KeyboardInterrupt):
+        return signals.exit_status(exc), interrupted_message(exc)
+    if isinstance(exc, MemoryError):
+        return 1, "out of memory; try a smaller --size, --aa or fewer frames"
+    return 1, f"internal error: {type(exc).__name__}: {_one_line(exc)}"
 
 
 def _one_line(exc: BaseException) -> str:

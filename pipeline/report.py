@@ -210,6 +210,7 @@ def add_arguments(p: argparse.ArgumentParser) -> argparse.ArgumentParser:
                         f"{outputs.GIF_MAX_FPS:g})")
     p.add_argument("--jobs", "-j", type=_cli._positive_int, metavar="N",
                    help="parallel simulations of a sweep (default: os.cpu_count())")
+    _cli.add_cluster_options(p)
     p.add_argument("--title", metavar="TEXT", help="page title (default: the scene file name)")
     p.add_argument("--quiet", "-q", action="store_true",
                    help="no progress bars, warnings or summary line")
@@ -265,6 +266,9 @@ class ReportPlan:
     gif_frames: list[int] = field(default_factory=list)
     jobs: int = 1
     title: str = ""
+    workers: int | None = None  # --workers: simulate on a LocalCluster of this many
+    scheduler: str | None = None  # --scheduler: simulate on that Dask cluster
+    cluster: str = ""  # where the simulations ran, when on Dask ("2 Dask workers")
 
     @property
     def needed_frames(self) -> list[int]:
@@ -327,6 +331,9 @@ def plan_report(args) -> ReportPlan:
                               f"{outputs.GIF_MAX_FPS:g}")
     if (args.gif_size is not None or args.gif_fps is not None) and not args.gif:
         raise _cli.UsageError("--gif-size and --gif-fps need --gif")
+    if args.jobs is not None and _cli.cluster_requested(args):
+        raise _cli.UsageError("give --jobs (processes here) or --workers / --scheduler (Dask), "
+                              "not both")
 
     duration = args.duration if args.duration is not None else None
     if args.at is not None:
@@ -374,7 +381,8 @@ def plan_report(args) -> ReportPlan:
         width=int(width), height=int(height), aa=args.aa, overrides=list(args.overrides),
         sweeps=sweeps, variants=variants, gif_size=gif_size, gif_fps=gif_fps,
         gif_times=gif_times, gif_frames=gif_frames, jobs=max(1, jobs),
-        title=args.title or Path(args.scene).name)
+        title=args.title or Path(args.scene).name, workers=args.workers,
+        scheduler=args.scheduler)
 
 
 # --------------------------------------------------------------------------- simulating
@@ -395,19 +403,15 @@ def simulate_variant(scene_path: str, overrides: Sequence[str], frames: Sequence
                      on_frame: Callable[[], None] | None = None) -> VariantRun:
     """Simulate one variant frame by frame (as `render` does) up to max(frames), keeping a
     copy of the positions at each frame in `frames`. Runs in a worker process for sweeps:
-    every argument and the result are picklable. `threads`: numba threads to use here
+    every argument and the result are picklable (on Dask `scene_path` is the file's
+    bytes, a SceneFile). `threads`: numba threads to use here
     (restored afterwards); the results do not depend on it."""
-    restore = None
-    if threads is not None:
-        import numba
-
-        restore = numba.get_num_threads()
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
-    try:
+    if threads is None:
         return _simulate(scene_path, overrides, frames, on_frame)
-    finally:
-        if restore is not None:
-            numba.set_num_threads(restore)
+    from .simulation import numba_threads
+
+    with numba_threads(threads):
+        return _simulate(scene_path, overrides, frames, on_frame)
 
 
 def _simulate(scene_path, overrides, frames, on_frame) -> VariantRun:
@@ -445,11 +449,14 @@ def _simulate_indexed(task: tuple) -> tuple[int, VariantRun]:
 
 def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
                     ) -> list[VariantRun]:
-    """Every variant's simulation: in this process when there is one variant or one job,
-    else in a pool of `jobs` spawned processes. Results do not depend on `jobs`."""
+    """Every variant's simulation: one Dask task each with --workers / --scheduler, else
+    in this process when there is one variant or one job, else in a pool of `jobs` spawned
+    processes. Results do not depend on where they ran."""
     jobs = plan.jobs if jobs is None else jobs
     frames = plan.needed_frames
     n = len(plan.variants)
+    if _cli.cluster_requested(plan):
+        return _simulate_on_dask(plan, frames, progress)
     workers = max(1, min(jobs, n))
     if workers == 1:
         runs = []
@@ -477,6 +484,30 @@ def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
     finally:
         pool.terminate()  # on an error or a signal: no worker is left running
         pool.join()
+    return runs  # type: ignore[return-value]
+
+
+def _simulate_on_dask(plan: ReportPlan, frames: list[int], progress) -> list[VariantRun]:
+    """One task per variant; each ships the scene file's bytes and the overrides."""
+    import uuid
+
+    import distributed
+
+    from . import cluster
+    from .scene import SceneFile
+
+    scene = SceneFile.read(plan.scene_path)
+    runs: list[VariantRun | None] = [None] * len(plan.variants)
+    with cluster.connect(plan) as client:
+        run = f"clothpipe-report-{uuid.uuid4().hex}"
+        futures = {client.submit(simulate_variant, scene, plan.overrides + list(v.overrides),
+                                 frames, 1, key=f"{run}-{v.index}"): v.index
+                   for v in plan.variants}
+        for future in distributed.as_completed(futures, loop=client.loop):
+            runs[futures[future]] = future.result()
+            if progress is not None:
+                progress.update(1)
+        plan.cluster = cluster.where(client, plan)
     return runs  # type: ignore[return-value]
 
 
@@ -851,8 +882,9 @@ def build_report(plan: ReportPlan, runs: Sequence[VariantRun] | None = None,
     timings["warm-up"] = time.perf_counter() - t0
     if runs is None:
         n = len(plan.variants)
-        total = plan.needed_frames[-1] if n == 1 else n
-        sim_bar = bar(total, "simulate", "frame" if n == 1 else "variant", show_progress, 0)
+        by_frame = n == 1 and not _cli.cluster_requested(plan)  # else one tick per variant
+        sim_bar = bar(plan.needed_frames[-1] if by_frame else n, "simulate",
+                      "frame" if by_frame else "variant", show_progress, 0)
         t0 = time.perf_counter()
         try:
             runs = run_simulations(plan, progress=sim_bar)
@@ -929,7 +961,8 @@ def render_html(report: Report, sheet_name: str, gif_name: str | None,
         for n, s in enumerate(plan.sweeps):
             where = ("rows" if n == 0 else "columns" if n == 1 else "one grid per value")
             meta.append((f"sweep {n + 1} ({where})", f"{s.key} = {', '.join(s.values)}"))
-        meta.append(("processes", str(max(1, min(plan.jobs, len(plan.variants))))))
+        meta.append(("processes", plan.cluster
+                      or str(max(1, min(plan.jobs, len(plan.variants))))))
     for v, run in zip(plan.variants, report.runs):
         name = f"simulation{' ' + v.label if v.label else ''}"
         status = f"{run.seconds:.2f} s" + (f"; diverged: {run.error}" if run.error else "")
@@ -1082,7 +1115,8 @@ def run(args) -> int:
     try:
         return _execute(args, err)
     except _cli.UsageError as exc:
-        return fail(2, f"{exc}\n{_cli.PROG}: try 'render report --help'")
+        hint = f"\n{_cli.PROG}: try 'render report --help'" if exc.help_hint else ""
+        return fail(2, f"{exc}{hint}")
     except (SceneError, OutputError, TextureError) as exc:
         return fail(2, _cli._one_line(exc))
     except outputs.WriteError as exc:

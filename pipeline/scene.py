@@ -29,7 +29,7 @@ from typing import Any
 __all__ = [
     "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane", "Box",
     "MeshCollider", "Keyframe", "Collider", "Wind", "FemMaterial", "MODELS", "SimulationSettings", "CameraSettings", "COURSE_CAMERA", "LightSettings", "RenderSettings",
-    "Scene", "load_scene", "apply_overrides", "scene_schema",
+    "Scene", "SceneFile", "load_scene", "apply_overrides", "scene_schema",
 ]
 
 #: Known integrator names for `simulation.integrator` (the first is the default).
@@ -267,12 +267,30 @@ _DICT_SOURCE = "<scene>"
 PathItem = str | int
 
 
-def load_scene(source: str | os.PathLike | dict, overrides: Sequence[str] = ()) -> Scene:
+@dataclass(frozen=True)
+class SceneFile:
+    """A scene file read into memory, to be loaded in another process or on another machine
+    exactly as from the file: `name` is the path as given (named in messages), `folder` the
+    absolute folder its relative file references are resolved against, `data` its bytes."""
+
+    name: str
+    folder: str
+    data: bytes
+
+    @classmethod
+    def read(cls, path: str | os.PathLike) -> "SceneFile":
+        name = os.fsdecode(os.fspath(path))
+        return cls(name, os.path.dirname(os.path.abspath(name)), _read_bytes(name))
+
+
+def load_scene(source: str | os.PathLike | dict | SceneFile,
+               overrides: Sequence[str] = ()) -> Scene:
     """Read, check and build a `Scene`.
 
-    `source` is a path to a JSON scene file, or an already-parsed dict (it is not
-    modified; messages then name the file "<scene>" and relative paths in `render`
-    are relative to the current directory). `overrides` are "dotted.key=value"
+    `source` is a path to a JSON scene file, a `SceneFile` (the same file's bytes, read
+    earlier or elsewhere), or an already-parsed dict (it is not modified; messages then
+    name the file "<scene>" and relative paths in `render` are relative to the current
+    directory). `overrides` are "dotted.key=value"
     strings applied to the raw data before validation (see `apply_overrides`).
 
     Raises `SceneError` with a one-line message
@@ -283,11 +301,14 @@ def load_scene(source: str | os.PathLike | dict, overrides: Sequence[str] = ()) 
         data: Any = _copy_json(source)
         base_dir = Path.cwd()
         src_path = None
+    elif isinstance(source, SceneFile):
+        file = source.name
+        data = _parse_json(source.data, file)
+        base_dir = Path(source.folder)
+        src_path = base_dir / os.path.basename(file)
     elif isinstance(source, (str, os.PathLike)):
-        file = os.fspath(source)
-        if isinstance(file, bytes):
-            file = os.fsdecode(file)
-        data = _read_json(file)
+        file = os.fsdecode(os.fspath(source))
+        data = _parse_json(_read_bytes(file), file)
         src_path = Path(os.path.abspath(file))
         base_dir = src_path.parent
     else:
@@ -349,12 +370,15 @@ def scene_schema() -> dict:
 
 # --- reading ------------------------------------------------------------------------------
 
-def _read_json(file: str) -> Any:
+def _read_bytes(file: str) -> bytes:
     try:
         with open(file, "rb") as fh:
-            raw = fh.read()
+            return fh.read()
     except OSError as e:
         raise SceneError(f"{file}: cannot read: {e.strerror or e}") from None
+
+
+def _parse_json(raw: bytes, file: str) -> Any:
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:

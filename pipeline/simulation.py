@@ -1,11 +1,13 @@
 """Running a scene: the `Simulation` object and `simulate()`."""
 from __future__ import annotations
 
+import contextlib
 import copy
 import math
 import os
 import sys
 import warnings
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,29 @@ class StabilityWarning(UserWarning):
     """The time step exceeds the explicit stability limit of the spring lattice."""
 
 
+def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> ClothModel:
+    """The cloth model a simulation of `scene` starts from (points that start inside a
+    collider moved out), also what frames are drawn with (the default camera looks at
+    its initial positions)."""
+    model = build_model(scene, initial_positions)
+    resolve_start_inside(scene, model)
+    return model
+
+
+@contextlib.contextmanager
+def numba_threads(n: int) -> Iterator[None]:
+    """Run this thread's numba kernels on `n` threads (at most NUMBA_NUM_THREADS) inside
+    the block; results do not depend on it (every parallel loop writes disjoint points)."""
+    import numba
+
+    before = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
+    try:
+        yield
+    finally:
+        numba.set_num_threads(before)
+
+
 class Simulation:
     """A scene being simulated, stepped by hand or frame by frame.
 
@@ -41,8 +66,7 @@ class Simulation:
         initial_positions: np.ndarray | None = None,
     ) -> None:
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
-        self.model: ClothModel = build_model(self.scene, initial_positions)
-        resolve_start_inside(self.scene, self.model)  # points starting inside a collider
+        self.model: ClothModel = cloth_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
         self.omega_max, self.dt_max = stability_limit(self.model)
         self.integrator = self.scene.simulation.integrator
