@@ -10,7 +10,7 @@ filtered to 8 bits (`put`).
 The shader is an argument, a `ShaderKey`: an int that numba types as its literal value, so
 numba compiles the kernel once per shader with that shader's fragment inlined (as if each
 shader had its own copy of the loop), and caches each on disk under the key. A registered
-shader's key is a checksum of its name and of the sources its fragment is built from
+shader's key is a checksum of its fragment's name and of the sources it is built from
 (`shader_key`), so editing a shader or a helper gives a new key rather than a stale kernel.
 A shader made at run time (not a module of shading/shaders) gets a negative key and the
 uncached twin of the kernel (`uncached_fragment_stage`): compiled once per process.
@@ -167,9 +167,10 @@ _SOURCES = ("lighting.py", "textures.py")  # helpers a fragment inlines
 
 
 def shader_key(name: str, fragment, registered: bool) -> ShaderKey:
-    """The key of a shader: for a module of shading/shaders (`registered`), a checksum of
-    its name and of the sources a fragment can inline (every shader module and the
-    helpers); else a new negative key of this process."""
+    """The key of a shader's `fragment`: for a module of shading/shaders (`registered`), a
+    checksum of `name` (the fragment's qualified name) and of the sources a fragment can
+    inline (every shader module and the helpers); else a new negative key of this
+    process."""
     if registered:
         here = Path(__file__).resolve().parent
         files = sorted((here / "shaders").glob("*.py")) + [here / n for n in _SOURCES]

@@ -83,7 +83,10 @@ def _discover() -> dict:
         mod = importlib.import_module(f"{__name__}.{info.name}")
         sh = getattr(mod, "SHADER", None)
         if isinstance(sh, Shader):
-            object.__setattr__(sh, "key", shader_key(sh.name, sh.fragment, True))
+            # keyed by the fragment, so shaders sharing one (bump, displacement) share its kernel
+            frag = sh.fragment.py_func
+            object.__setattr__(sh, "key", shader_key(f"{frag.__module__}.{frag.__qualname__}",
+                                                     sh.fragment, True))
             found[sh.name] = sh
     return found
 
