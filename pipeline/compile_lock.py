@@ -1,15 +1,14 @@
-"""One numba compiler at a time per cache: an inter-process lock around numba's cache.
+"""One numba compiler at a time per cache: an inter-process lock around numba's compiler.
 
-Processes that compile the same kernels into the same numba cache at the same time can
-leave mismatched cache files that later crash the process that loads them (numba issues
-4807 and 10128; a segfault in verlet.advance was seen here). Dask worker processes on
-one machine share a cache, so while clothpipe runs on a cluster every process (the client
-and each worker, through pipeline.cluster's worker plugin) takes a file lock whenever
-numba takes its compiler lock: shared while it loads kernels from the cache, exclusive
-from the moment it has to compile one until the compiled kernel is saved. Loading stays
-parallel; only compiling and saving go one process at a time. The lock file lives in the
-numba cache folder (NUMBA_CACHE_DIR), else in the temporary folder; the kernel releases
-it when a process dies, even by kill -9.
+Dask worker processes on one machine share a numba cache and mostly need the same kernels.
+Two saves at once are safe (shading/jit.py locks numba's cache index), but two workers
+compiling the same kernels at once is twice the work on a first run. So while clothpipe
+runs on a cluster every process (the client and each worker, through pipeline.cluster's
+worker plugin) takes a file lock whenever numba takes its compiler lock: shared while it
+loads kernels from the cache, exclusive from the moment it has to compile one until the
+compiled kernel is saved, so the next process loads what the first compiled. Loading
+stays parallel. The lock file lives in the numba cache folder (NUMBA_CACHE_DIR), else in
+the temporary folder; the kernel releases it when a process dies, even by kill -9.
 
 This listens to numba's documented event API: "numba:compiler_lock" (taken for every
 load, compile and save) and "numba:compile" (a cache miss being compiled).
