@@ -23,6 +23,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
@@ -178,8 +179,14 @@ def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob
                       kernels) -> None:
     """Both shares at once; the helper reports each kernel it finishes on its stdout."""
     payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], stdin=subprocess.PIPE,
-                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    # Run from the folder holding this package: `-m` puts the working folder first on the
+    # path, and a checkout there (a user's clone beside the installed package) would be
+    # imported instead, its kernels cached apart from ours (numba keys the cache on the
+    # source file's path).
+    root = Path(__file__).resolve().parent.parent
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], cwd=root,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL)
     simulation_ready = threading.Event()
 
     def follow() -> None:  # the helper's reports, until it ends (or dies)
