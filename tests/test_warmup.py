@@ -16,10 +16,13 @@ SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150
                    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
 
 
-def _render(scene: Path, out: Path, cache: Path) -> str:
-    env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(cache), "PYTHONPATH": str(ROOT)}
-    r = subprocess.run([sys.executable, "-m", "pipeline.cli", str(scene), "--out", str(out),
-                        "--size", "24x24", "--duration", "0.2"], env=env, cwd=ROOT,
+def _render(scene: Path, out: Path, cache: Path, cwd: Path) -> str:
+    """`render` as an installed command runs it: the package from ROOT, started in `cwd`."""
+    env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(cache)}
+    code = f"import sys; sys.path.insert(0, {str(ROOT)!r}); from pipeline.cli import main; " \
+           "sys.exit(main())"
+    r = subprocess.run([sys.executable, "-c", code, str(scene), "--out", str(out),
+                        "--size", "24x24", "--duration", "0.2"], env=env, cwd=cwd,
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr
     return r.stderr.strip().splitlines()[-1]
@@ -29,13 +32,22 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
     scene = tmp_path / "s.json"
     scene.write_text(json.dumps(SCENE))
     cache = tmp_path / "numba"
-    cold = _render(scene, tmp_path / "cold.gif", cache)
+    # started in a folder holding another `pipeline` (a user's clone beside the installed
+    # package): the compile helper must import the package render runs, not this one
+    decoy = tmp_path / "work" / "pipeline"
+    decoy.mkdir(parents=True)
+    marker = tmp_path / "decoy-imported"
+    (decoy / "__init__.py").write_text(f"open({str(marker)!r}, 'w').close()\n"
+                                       "raise ImportError('the decoy package')\n")
+    (decoy / "warmup.py").write_text("")
+    cold = _render(scene, tmp_path / "cold.gif", cache, decoy.parent)
+    assert not marker.exists(), "the compile helper imported the working folder's pipeline"
     assert re.search(r"; compile [\d.]+ s, simulate", cold), cold
     # the helper's share (forces, the renderer's fragment stage) and this process's share
     # (colliders) are all in the one cache
     names = {p.name.split("-")[0] for p in cache.rglob("*.nbi")}
     assert {"forces.total_force", "__init__.collide_all", "shade._fragment_stage",
             "verlet.advance"} <= names, sorted(names)
-    warm = _render(scene, tmp_path / "warm.gif", cache)
+    warm = _render(scene, tmp_path / "warm.gif", cache, decoy.parent)
     assert "compile" not in warm, warm
     assert (tmp_path / "cold.gif").read_bytes() == (tmp_path / "warm.gif").read_bytes()
