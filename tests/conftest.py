@@ -5,10 +5,22 @@ The dicts use only the course format plus `simulation` keys that the C++ referen
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+
+def pytest_configure(config):
+    """Under pytest-xdist each worker runs numba's parallel kernels on one thread: two
+    workers with two threads each on two cores stall every parfor barrier on a descheduled
+    thread (seen: the suite at 14-20 min instead of 8). Results do not depend on it."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        import numba
+
+        numba.set_num_threads(1)
+
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
