@@ -143,21 +143,25 @@ def _wait_for_room(queue, depth: int, stop) -> bool:
     return False
 
 
-def frame_shot_here(scene_file, overrides, plan, framing) -> None:
-    """Fill `framing` (a scene with no camera) from the whole shot, simulated in this
-    process first: the simulation is a small share of a long render, and every render
-    task then draws with the same camera as a one-process run."""
-    from .framing import framed_points
+def frame_shot_here(scene_file, overrides, plan):
+    """The framing (pipeline.framing) of a scene with no camera over the whole shot,
+    simulated in this process first: the simulation is a small share of a long render, and
+    every render task then draws with the same camera as a one-process run."""
+    from .framing import frame_shot
     from .scene import load_scene
     from .simulation import Simulation
 
     scene = load_scene(scene_file, list(overrides))
     sim = Simulation(scene)
-    current = 0
-    for j in plan.shot_frames:
-        sim.advance(j - current)
-        current = j
-        framing.add(framed_points(scene, sim.positions, j / plan.sim_fps))
+
+    def shot():
+        current = 0
+        for j in plan.shot_frames:
+            sim.advance(j - current)
+            current = j
+            yield sim.positions, j / plan.sim_fps
+
+    return frame_shot(scene, shot(), plan.width, plan.height)
 
 
 def execute(args, err, scene_file, overrides, plan, writers, golden, framing,
@@ -174,9 +178,8 @@ def execute(args, err, scene_file, overrides, plan, writers, golden, framing,
     view = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa)
     if framing is not None:
         t0 = time.perf_counter()
-        frame_shot_here(scene_file, overrides, plan, framing)
+        view["shot"] = frame_shot_here(scene_file, overrides, plan)
         timers.simulate += time.perf_counter() - t0
-        view["shot"] = framing
     with cluster.connect(args) as client:
         threads = cluster.worker_threads(client)
         run = f"clothpipe-{uuid.uuid4().hex}"

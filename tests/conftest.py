@@ -22,6 +22,15 @@ def pytest_configure(config):
         numba.set_num_threads(1)
 
 
+def process_alive(pid: int) -> bool:
+    """Alive and not a zombie (from /proc)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
+
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
 

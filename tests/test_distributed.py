@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cloth_dict, scene_dict
+from conftest import cloth_dict, process_alive, scene_dict
 from distributed import Client, LocalCluster
 
 from pipeline import batch, report
@@ -282,14 +282,6 @@ def descendants(pid: int) -> set[int]:
     return found
 
 
-def alive(pid: int) -> bool:
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
-
-
 def test_sigterm_cancels_the_local_cluster_and_leaves_nothing(tmp_path):
     scene = write_scene(tmp_path, simulation__steps_per_frame=3000)
     proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/frames/",
@@ -310,9 +302,9 @@ def test_sigterm_cancels_the_local_cluster_and_leaves_nothing(tmp_path):
     assert "render: interrupted (SIGTERM); no output written" in err
     assert sorted(os.listdir(tmp_path)) == ["s.json"]
     end = time.monotonic() + 30
-    while any(alive(k) for k in kids) and time.monotonic() < end:
+    while any(process_alive(k) for k in kids) and time.monotonic() < end:
         time.sleep(0.1)
-    assert not [k for k in kids if alive(k)]
+    assert not [k for k in kids if process_alive(k)]
 
 
 def test_without_cluster_flags_distributed_is_never_imported(tmp_path):

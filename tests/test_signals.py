@@ -18,7 +18,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import cloth_dict, scene_dict
+from conftest import cloth_dict, process_alive, scene_dict
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = scene_dict(cloth_dict(12, 12, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
@@ -57,15 +57,6 @@ def children(pid: int) -> dict[int, str]:
         if int(fields[1]) == pid and fields[0] != "Z":
             out[int(entry.name)] = name
     return out
-
-
-def running(pid: int) -> bool:
-    """Alive and not a zombie."""
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-    except OSError:
-        return False
-    return stat[stat.rindex(")") + 2:].split()[0] != "Z"
 
 
 def wait_for(proc: subprocess.Popen, condition, what: str):
@@ -113,9 +104,9 @@ def stop(proc: subprocess.Popen, sig: int, out_dir: Path, keep: set[str],
     assert sorted(p.name for p in out_dir.iterdir()) == sorted(keep)
     for pid, comm in kids.items():
         deadline = time.monotonic() + 30
-        while running(pid) and time.monotonic() < deadline:
+        while process_alive(pid) and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert not running(pid), f"child {comm} ({pid}) still running"
+        assert not process_alive(pid), f"child {comm} ({pid}) still running"
     return kids
 
 
