@@ -153,8 +153,9 @@ class Run:
         self.dt0 = system.dt
         if dt is not None:
             # keep the scene's drag rate: c' = 1 - (1 - c)^(dt / dt0)
+            dt = float(dt)
             damping = 1.0 - (1.0 - system.damping) ** (dt / system.dt)
-            system = system._replace(dt=float(dt), damping=damping)
+            system = system._replace(dt=dt, damping=damping, force_dt2=dt * dt)
         self.system: System = system
         self.integrator = integrator
         self.state = state_class(integrator)(system)

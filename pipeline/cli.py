@@ -480,7 +480,8 @@ def run(args, err: _Errors, source=None) -> int:
             from .frames import render_frame, scene_meshes
             from .simulation import Simulation
 
-            return _execute(args, err, scene, plan, Simulation(scene), writers, golden,
+            sim = Simulation(scene, shot_seconds=plan.shot_frames[-1] / plan.sim_fps)
+            return _execute(args, err, scene, plan, sim, writers, golden,
                             render_frame, scene_meshes, framing, t_wall)
         except BaseException:
             for writer in writers.values():

@@ -111,7 +111,8 @@ def simulate_shot(shot: Shot) -> SimResult:
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught, numba_threads(1):
         warnings.simplefilter("always")
-        sim = Simulation(load_scene(shot.scene, list(shot.overrides)))
+        sim = Simulation(load_scene(shot.scene, list(shot.overrides)),
+                         shot_seconds=shot.sim_frames[-1] / shot.sim_fps)
         seconds = time.perf_counter() - t0  # simulating only, not waiting for the client
         current = 0
         for k, frames in enumerate(shot.chunks()):
@@ -152,7 +153,7 @@ def frame_shot_here(scene_file, overrides, plan):
     from .simulation import Simulation
 
     scene = load_scene(scene_file, list(overrides))
-    sim = Simulation(scene)
+    sim = Simulation(scene, shot_seconds=plan.shot_frames[-1] / plan.sim_fps)
 
     def shot():
         current = 0

@@ -2,18 +2,30 @@
 
 The scene's physics is what it means at a converged step: the damping is a drag rate fixed
 at the step the file gives (gamma = -ln(1 - c) / dt0; a step dt gets 1 - (1 - c)^(dt/dt0)),
-Verlet starts from rest with the Taylor start (x_last = x0 + a0 dt^2 / 2), and the colliders
-act after Provot's stretch limit so that no point ends a step inside one. Then, frame by frame:
+Verlet integrates that drag exactly for a constant force (verlet.py, `force_dt2`) and starts
+from rest with the matching start, and the colliders act after Provot's stretch limit so
+that no point ends a step inside one. Then:
 
-1. The step, by error control (step doubling over a frame). A frame is advanced twice from
-   the same state: with m = n // 2 steps (B) and with n steps (A, kept). The local error of
-   A is estimated as |A - B| / ((n/m)^p - 1) (p the integrator's order), measured on screen:
-   the largest distance between a point's two projections through the scene's camera, in
-   pixels of the rendered image. A frame is accepted when that is at most SAFETY times
-   `tolerance_px`, else redone with more steps; the next frame's n follows the usual
-   controller n' = n (err / target)^(1/p) (bounded to halve or double). n never goes below
-   twice the stability floor (so that B is stable too), and a step the divergence guard
-   rejects is redone with twice the steps.
+1. The step. The FEM's, by error control (step doubling over a frame): a frame is advanced
+   twice from the same state, with m = n // 2 steps (B) and with n steps (A, kept). The
+   local error of A is estimated as |A - B| / ((n/m)^p - 1) (p the integrator's order),
+   measured on screen: the largest distance between a point's two projections through the
+   scene's camera, in pixels of the rendered image. A frame is accepted when that is at
+   most SAFETY times `tolerance_px`, else redone with more steps; the next frame's n follows
+   the usual controller n' = n (err / target)^(1/p) (bounded to halve or double). n never
+   goes below the stability floor (so that B is stable too), and a step the divergence
+   guard rejects is redone with twice the steps.
+   The classic model's, once for the shot, by a pilot: its stretch limit acts once per step,
+   so the step count is part of the model and changing it mid-run starts a transient that
+   per-frame doubling reads as error. The pilot runs the first PILOT_SECONDS (or the whole
+   shot, if the caller says it is shorter: Simulation's `shot_seconds`) at n1 and 2 n1
+   steps per frame side by side; the error of n steps is first order in the step (measured:
+   docs/fidelity.md), C / n, and C = 2 n1 d from the two runs' screen distance d, taken at
+   its largest over the pilot's second half (the swing after the release; the release's
+   first snap is left out, docs/fidelity.md); n is the fewest steps that bring C / n to
+   PILOT_TARGET tolerances (a third run at 4 n1 checks the first order). The shot then runs
+   from the start at n. Under contact, self-collision or wind the classic model's motion
+   depends on the step chaotically, and the file's steps stay (no pilot).
 2. The integrator: Verlet, unless its stability floor makes implicit Euler cheaper per frame
    at the measured cost ratio of one implicit step to one Verlet step (IMPLICIT_COST).
 3. Passes: pipeline.reach skips self-collision and colliders where nothing can touch
@@ -53,6 +65,15 @@ MAX_REARM_EVERY = 64  # ... backing off to this while nothing can be skipped
 PERSIST_FRAMES = 4  # a velocity error is weighed over at most this many frames
 MAX_CHECK_EVERY = 16  # error estimates every frame, thinned out to this while far below
 CHECK_COST = 1.5  # steps per kept step on a frame with an error estimate
+PILOT_SECONDS = 1.0  # the classic model's pilot covers the shot's first second ...
+PILOT_STEPS = 8  # ... at n1 >= this many steps per frame (and the stability floor) and 2 n1
+#: the pilot's estimate of the largest error over its second half may reach this many
+#: tolerances (calibrated on pinned2 and pinned4: the error at 1 s and 3 s is then about
+#: one tolerance or less; docs/fidelity.md)
+PILOT_TARGET = 2.0
+#: the pilot's distances must shrink by this factor from (n1, 2 n1) to (2 n1, 4 n1) for more
+#: steps to count as more accuracy (first order: 2; chaotic motion: about 1)
+PILOT_CONVERGENCE = 1.5
 #: cost of one implicit-Euler step in Verlet steps (benchmarks/sim.py --features, 2026-11-23)
 IMPLICIT_COST = {"classic": 20.0, "fem": 41.9}
 
@@ -62,6 +83,7 @@ class Plan:
     """What `fidelity` will model and why (`render plan`, `Simulation.plan`)."""
 
     fidelity: str
+    model: str  # "classic" or "fem"
     integrator: str
     steps_per_frame_exact: int
     steps_per_frame_min: int  # auto: the stability floor (x2 for the error estimate)
@@ -76,6 +98,8 @@ class Plan:
     sleeps: str = ""
     predicted_cost: float = 1.0  # steps per frame against exact's, before sleeping
     reasons: list[str] = field(default_factory=list)
+    pilot: dict | None = None  # auto, classic model: the pilot's figures once it has run
+    chaotic: bool = False  # auto, classic model with contact or wind: the file's steps
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -88,10 +112,22 @@ class Plan:
         else:
             out.append(f"tolerance {self.tolerance_px:g} px = {self.metres_per_px * 1e3:.3g} mm at "
                        f"the cloth's nearest point ({self.image_height} px high image)")
-            if self.steps_per_frame_min == self.steps_per_frame_max:
-                out.append(f"steps per frame {self.steps_per_frame_min}, as the file says: the "
-                           "classic model's stretch limit acts once per step, so its step "
-                           "count is part of the model (docs/fidelity.md)")
+            if self.pilot is not None:
+                out.append(f"steps per frame {self.steps_per_frame_start} for the whole shot "
+                           f"(exact: {self.steps_per_frame_exact}), {pilot_text(self.pilot)} (the "
+                           "classic model's stretch limit acts once per step, so the step "
+                           "count is fixed for the shot; docs/fidelity.md)")
+            elif self.model == "classic" and self.chaotic:
+                out.append(f"steps per frame {self.steps_per_frame_start}, as the file says: "
+                           "under contact, self-collision or wind the classic model's motion "
+                           "depends on the step chaotically, so more steps buy no accuracy "
+                           "(docs/fidelity.md)")
+            elif self.model == "classic":
+                out.append(f"steps per frame: chosen for the whole shot by a pilot run of the "
+                           f"first {PILOT_SECONDS:g} s at two step counts (at least "
+                           f"{self.steps_per_frame_min}; exact: {self.steps_per_frame_exact}): "
+                           "the classic model's stretch limit acts once per step, so the step "
+                           "count is fixed for the shot (docs/fidelity.md)")
             else:
                 out.append(f"steps per frame {self.steps_per_frame_min}.."
                            f"{self.steps_per_frame_max}, starting at "
@@ -102,7 +138,12 @@ class Plan:
             out.append(f"collider {c['name']}: {c['status']}")
         if self.sleeps:
             out.append(f"sleep: {self.sleeps}")
-        if self.fidelity == "auto":
+        if self.fidelity == "auto" and self.model == "classic" and not (self.pilot or
+                                                                          self.chaotic):
+            out.append(f"predicted cost: set by the pilot, which itself costs "
+                       f"{3 * max(PILOT_STEPS, self.steps_per_frame_min)} steps per frame over "
+                       f"its {PILOT_SECONDS:g} s; nothing while asleep")
+        elif self.fidelity == "auto":
             out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's steps at the start "
                        f"(error estimates included), nothing while asleep")
         out.extend(self.reasons)
@@ -144,7 +185,7 @@ def wake_time(scene: Scene, t: float) -> float | None:
 class AutoStepper:
     """Advances a Simulation's state frame by frame under `fidelity: auto`."""
 
-    def __init__(self, sim) -> None:
+    def __init__(self, sim, shot_seconds: float | None = None) -> None:
         from .frames import default_camera
 
         self.sim = sim
@@ -170,14 +211,20 @@ class AutoStepper:
         self.n_min = max(2, math.ceil(COARSE_RATIO * self.floor))
         self.n_max = max(64 * self.n_min, 16 * s.steps_per_frame)
         #: the classic model's step count is part of the model (its stretch limit acts once
-        #: per step): kept as the file says; the FEM's is chosen by error control
+        #: per step): chosen once for the shot by a pilot; the FEM's per frame by doubling
         self.adaptive = s.model != "classic"
+        self.pilot: dict | None = None  # the classic pilot's figures, once it has run
+        #: the classic model's motion under contact or wind depends on the step chaotically
+        #: (docs/fidelity.md): no pilot there, the file's steps
+        self.chaotic = bool(scene.colliders or sim.system.self_collision or scene.wind)
+        self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
         if not self.adaptive:
-            self.n_min = self.n_max = max(s.steps_per_frame, self.floor)
+            self.n_min = max(2, self.floor)
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
-        gamma = -math.log(1.0 - self.base.damping) / self.base.dt if self.base.damping else 0.0
+        self.gamma = gamma = (-math.log(1.0 - self.base.damping) / self.base.dt
+                              if self.base.damping else 0.0)
         #: how long a velocity error is weighed: the drag's time constant, within one and
         #: PERSIST_FRAMES frames (an oscillation bounds what a velocity error does)
         self.persist = self.frame_dt * min(PERSIST_FRAMES, max(1.0, 1.0 / (gamma * self.frame_dt)
@@ -199,7 +246,19 @@ class AutoStepper:
     def system_for(self, n: int):
         dt = self.frame_dt / n
         damping = 1.0 - (1.0 - self.base.damping) ** (dt / self.base.dt)
-        return self.sim.system._replace(dt=dt, damping=damping, steps_per_frame=n)
+        force_dt2 = dt * damping / self.gamma if self.gamma > 0 else dt * dt
+        return self.sim.system._replace(dt=dt, damping=damping, force_dt2=force_dt2,
+                                        steps_per_frame=n)
+
+    def _lag(self, dt: float) -> tuple[float, float]:
+        """(E, G) with x(t - dt) = x - v E + a G for velocity v and constant acceleration a
+        at x under the drag (v' = a - gamma v): E = (e^(gamma dt) - 1) / gamma, G = (E - dt)
+        / gamma; dt and dt^2 / 2 without drag."""
+        g = self.gamma
+        if g * dt < 1e-6:
+            return dt, 0.5 * dt * dt
+        e = math.expm1(g * dt) / g
+        return e, (e - dt) / g
 
     def _acceleration(self, system, t: float, v: np.ndarray) -> np.ndarray:
         state = self.sim._state
@@ -211,9 +270,8 @@ class AutoStepper:
 
     def _set_step(self, system, t: float) -> None:
         """Give the Verlet state the step of `system`, keeping the velocity at x: with a = F/m
-        at x, v = (x - x_last) / dt_old + a dt_old / 2 and x_last = x - v dt + a dt^2 / 2
-        (exact for constant acceleration; the Taylor start from rest on the first frame).
-        Only the FEM's step changes: the classic model's stretch limit is not in F."""
+        at x and (E, G) = _lag, v = (x - x_last + a G_old) / E_old and x_last = x - v E + a G
+        (exact for a constant acceleration under the drag; from rest on the first frame)."""
         state = self.sim._state
         if self.sim.integrator != "verlet":
             self.state_dt = system.dt
@@ -225,9 +283,11 @@ class AutoStepper:
         v = (state.x - state.last) / old if self._started else np.zeros_like(state.x)
         a = self._acceleration(system, t, v)
         if self._started:
-            v += 0.5 * old * a
+            e_old, g_old = self._lag(old)
+            v = (state.x - state.last + a * g_old) / e_old
+        e_new, g_new = self._lag(new)
         free = system.pinned == 0
-        state.last[:, free] = (state.x - v * new + 0.5 * new * new * a)[:, free]
+        state.last[:, free] = (state.x - v * e_new + a * g_new)[:, free]
         self.state_dt = new
         self._started = True
 
@@ -283,7 +343,8 @@ class AutoStepper:
         t = (self.frame + 1) * self.frame_dt
         v = state.velocity(system)
         if self.sim.integrator == "verlet":  # (x - x_last) / dt lags by half a step
-            v = v + 0.5 * system.dt * self._acceleration(system, t, v)
+            e, g = self._lag(system.dt)
+            v = (state.x - state.last + g * self._acceleration(system, t, v)) / e
         return (state.x + v * self.persist).T
 
     def _arm_passes(self) -> None:
@@ -321,6 +382,8 @@ class AutoStepper:
                 return
             self.asleep = False
             self.check_every = 1  # check the first frame awake
+        if not self.adaptive and not self.chaotic and self.pilot is None:
+            self._run_pilot()
         self._arm_passes()
         start = self.sim._state.x.T.copy()
         target = self.safety * self.tolerance
@@ -354,14 +417,82 @@ class AutoStepper:
             self.since_check = 0
             self.last_error_px = error
             self.n = self._next_steps(n, error / target)
-            # check less often while far below the target, at once again when near it
-            self.check_every = (min(MAX_CHECK_EVERY, 2 * self.check_every)
-                                if error < 0.25 * target else 1)
+            # check less often while far below the target (or below half of it at the fewest
+            # steps, where a check can only ask for more), at once again when near it
+            quiet = error < (0.5 if n <= self.n_min else 0.25) * target
+            self.check_every = min(MAX_CHECK_EVERY, 2 * self.check_every) if quiet else 1
         else:
             self.since_check += 1
             self.n = n
         self.frame += 1
         self._after_frame(start)
+
+    def _run_pilot(self) -> None:
+        """Choose the classic model's steps per frame for the shot (module docstring, 1).
+        The next pilot_seconds run at n1 and 2 n1 steps per frame side by side; where their
+        estimate asks for more steps than the file's, a third run at 4 n1 checks that the
+        distances halve with the step (first order: d(n1, 2 n1) / d(2 n1, 4 n1) >=
+        PILOT_CONVERGENCE). Where they do not (the motion depends on the step chaotically),
+        more steps buy no accuracy and the file's steps stay. A step count
+        the guard rejects is doubled. The state then goes back to where it was."""
+        frames = max(2, round(self.pilot_seconds / self.frame_dt))
+        n1 = max(PILOT_STEPS, self.n_min)
+        first, start = self.frame, self._save()
+        while True:
+            fine = self._pilot_pair(n1, frames, first, start, None)
+            if fine is not None:
+                break
+            self.rejected += 1
+            if 4 * n1 > self.n_max:
+                self._restore(start)
+                self.frame = first
+                self._diverged(2 * n1)
+            n1 *= 2
+        d1, kept = fine
+        file_steps = self.scene.simulation.steps_per_frame
+        constant = 2.0 * n1 * d1  # the error of n steps per frame: constant / n pixels
+        converges = None
+        if constant / (PILOT_TARGET * self.tolerance) > file_steps and 4 * n1 <= self.n_max:
+            finer = self._pilot_pair(4 * n1, frames, first, start, kept)
+            d2 = finer[0] if finer is not None else math.inf
+            converges = d1 >= PILOT_CONVERGENCE * d2
+            if converges:
+                constant = 4.0 * n1 * d2
+        self._restore(start)
+        self.frame = first
+        n = (file_steps if converges is False else
+             math.ceil(constant / (PILOT_TARGET * self.tolerance)))
+        self.n = int(min(self.n_max, max(self.n_min, n)))
+        self.pilot = {"steps": (n1, 2 * n1) if converges is None else (n1, 2 * n1, 4 * n1),
+                      "seconds": frames * self.frame_dt, "distance_px": d1,
+                      "converges": converges, "constant_px": constant,
+                      "predicted_px": None if converges is False else constant / self.n}
+
+    def _pilot_pair(self, n: int, frames: int, first: int, start: dict,
+                    against: list | None) -> tuple[float, list] | None:
+        """Run the pilot's frames from `start` at n steps per frame and, unless `against`
+        (positions kept from an earlier run) is given, at 2 n side by side: (the largest
+        screen distance between the two over the second half of the frames, the finer run's
+        positions there as float32), or None when the guard rejected a step."""
+        states = [start] if against is not None else [start, start]
+        kept, worst, j = [], 0.0, 0
+        for f in range(frames):
+            x = []
+            for k, steps in enumerate((n,) if against is not None else (n, 2 * n)):
+                self._restore(states[k])
+                self.frame = first + f
+                if not self._run(steps):
+                    return None
+                states[k] = self._save()
+                x.append(self.sim._state.x.T.copy())
+            if 2 * f < frames:  # the second half: the swing after the release
+                continue
+            other = against[j] if against is not None else x[1]
+            j += 1
+            worst = max(worst, screen_distance(self.camera, x[0], other))
+            if against is None:
+                kept.append(x[1].astype(np.float32))
+        return worst, kept
 
     def _next_steps(self, n: int, ratio: float) -> int:
         """The next frame's steps from this one's error ratio (error / target): up if above
@@ -447,15 +578,27 @@ class AutoStepper:
                 "frames_simulated": len(self.steps_used), "frames_slept": self.slept,
                 "frames_redone": self.rejected, "steps_total": self.steps_total,
                 "self_collision_passes": int(counts[1]) if self.sim.system.self_collision else 0,
-                "steps_with_a_collider_skipped": int(counts[2])}
+                "steps_with_a_collider_skipped": int(counts[2]), "pilot": self.pilot}
 
     def summary_text(self) -> str:
         s = self.summary()
-        return (f"auto: steps/frame {s['steps_per_frame_min']}/{s['steps_per_frame_median']:g}/"
+        pilot = "" if self.pilot is None else pilot_text(self.pilot) + ", "
+
+        return (f"auto: {pilot}steps/frame {s['steps_per_frame_min']}/{s['steps_per_frame_median']:g}/"
                 f"{s['steps_per_frame_max']} (min/median/max), {s['frames_slept']} frames slept, "
                 f"{s['frames_redone']} redone, {s['steps_total']} steps in all, "
                 f"{s['self_collision_passes']} self-collision passes, colliders skipped on "
                 f"{s['steps_with_a_collider_skipped']} steps")
+
+
+def pilot_text(pilot: dict) -> str:
+    """The classic pilot's figures in a few words."""
+    steps = "/".join(str(n) for n in pilot["steps"])
+    if pilot["converges"] is False:
+        result = "not converging in the step (chaotic motion): the file's steps"
+    else:
+        result = f"predicted error {pilot['predicted_px']:.2g} px"
+    return f"pilot {steps} steps/frame over {pilot['seconds']:.3g} s: {result}"
 
 
 def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:
@@ -501,7 +644,7 @@ def make_plan(sim) -> Plan:
                           f"({2 * scene.cloth.thickness:g} m; checked every step)")
     else:
         self_collision = "on every step"
-    plan = Plan(fidelity=s.fidelity, integrator=sim.integrator,
+    plan = Plan(fidelity=s.fidelity, model=s.model, integrator=sim.integrator,
                 steps_per_frame_exact=s.steps_per_frame, steps_per_frame_min=s.steps_per_frame,
                 steps_per_frame_start=s.steps_per_frame, steps_per_frame_max=s.steps_per_frame,
                 tolerance_px=None, metres_per_px=None, image_height=scene.render.height,
@@ -512,6 +655,7 @@ def make_plan(sim) -> Plan:
         plan.steps_per_frame_min, plan.steps_per_frame_start = st.n_min, st.n
         plan.steps_per_frame_max, plan.tolerance_px = st.n_max, st.tolerance
         plan.metres_per_px = metres_per_pixel(st.camera, points)
+        plan.pilot, plan.chaotic = st.pilot, st.chaotic and not st.adaptive
         plan.predicted_cost = (CHECK_COST if st.adaptive else 1.0) * st.n / s.steps_per_frame
         wake = wake_time(scene, 0.0)
         plan.sleeps = ("never: the wind varies in time" if scene.wind is not None else

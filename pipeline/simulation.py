@@ -64,7 +64,10 @@ class Simulation:
         scene: Scene | dict | str | os.PathLike,
         *,
         initial_positions: np.ndarray | None = None,
+        shot_seconds: float | None = None,
     ) -> None:
+        """`shot_seconds`: how long the caller will simulate, if known (fidelity auto's pilot
+        on the classic model covers no more than that)."""
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.model: ClothModel = cloth_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
@@ -86,7 +89,7 @@ class Simulation:
         if auto:
             from .fidelity import AutoStepper
 
-            self.stepper = AutoStepper(self)
+            self.stepper = AutoStepper(self, shot_seconds)
         elif self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
 

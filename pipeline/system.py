@@ -44,6 +44,7 @@ class System(NamedTuple):
     gravity: np.ndarray  # (3,)
     dt: float
     damping: float  # fraction of velocity lost per step
+    force_dt2: float  # factor of F/m in Verlet's update: dt^2 (the course), see verlet.py
     steps_per_frame: int
     colliders: ColliderTable
     wind: WindParams | None  # None: no wind (pruned from the kernels)
@@ -86,6 +87,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         gravity=np.array(sim.gravity, dtype=np.float64),
         dt=dt,
         damping=model.damping,
+        force_dt2=dt * dt,
         steps_per_frame=int(sim.steps_per_frame),
         colliders=pack_colliders(scene.colliders),
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),

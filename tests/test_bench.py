@@ -120,7 +120,7 @@ def test_stability_search_per_model():
 
 
 def test_fem_work_precision_converges():
-    rows, info = work_precision(_pinned2("fem"), t_end=0.1, sweep=(30, 60),
+    rows, info = work_precision(_pinned2("fem"), t_end=0.2, sweep=(30, 60),
                                 integrators=("verlet", "rk4", "implicit-euler", "xpbd"),
                                 log=lambda *a: None, auto_tolerances=(0.002, 4.0))
     assert info["model"] == "fem" and info["reference_check_rms"] < 1e-8

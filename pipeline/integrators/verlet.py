@@ -1,6 +1,9 @@
 """Verlet with damping, the classic model's integrator (SPEC section 2), exactly as the course.
 
-x' = x + (1 - damping) (x - x_last) + (F / m) dt^2; pinned points never move.
+x' = x + (1 - damping) (x - x_last) + (F / m) dt^2; pinned points never move. Under fidelity
+auto the factor dt^2 is `system.force_dt2` = dt damping / gamma (gamma the drag rate), which
+makes the update exact for a constant force under the drag (the course's dt^2 overshoots
+the terminal velocity by about gamma dt / 2); it tends to dt^2 as gamma -> 0.
 State: positions x and last positions x_last, both (3, N). Velocity-dependent forces (wind)
 see the velocity of the last step, (x - x_last) / dt.
 """
@@ -61,7 +64,7 @@ def advance(s, x, last, v, force, steps, first_step):
     (steps done, kinetic energy, bound); fewer steps than asked means the divergence guard
     tripped after the last one (see system.energy_guard)."""
     keep = 1.0 - s.damping
-    dt2 = s.dt * s.dt
+    dt2 = s.force_dt2
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * s.dt
