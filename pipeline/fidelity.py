@@ -100,6 +100,7 @@ class Plan:
     reasons: list[str] = field(default_factory=list)
     pilot: dict | None = None  # auto, classic model: the pilot's figures once it has run
     chaotic: bool = False  # auto, classic model with contact or wind: the file's steps
+    grid: tuple[int, int] = (0, 0)  # points across and down: the file's (auto keeps it)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -133,6 +134,10 @@ class Plan:
                            f"{self.steps_per_frame_max}, starting at "
                            f"{self.steps_per_frame_start} (exact: {self.steps_per_frame_exact}),"
                            " chosen per frame by step doubling")
+        if self.fidelity == "auto" and self.model == "fem":
+            out.append(f"FEM grid: the file's {self.grid[0]}x{self.grid[1]} (auto does not "
+                       "coarsen it: the measured error of coarser grids does not follow the "
+                       "screen size on every scene; docs/fidelity.md)")
         out.append(f"self-collision: {self.self_collision}")
         for c in self.colliders:
             out.append(f"collider {c['name']}: {c['status']}")
@@ -140,9 +145,10 @@ class Plan:
             out.append(f"sleep: {self.sleeps}")
         if self.fidelity == "auto" and self.model == "classic" and not (self.pilot or
                                                                           self.chaotic):
-            out.append(f"predicted cost: set by the pilot, which itself costs "
-                       f"{3 * max(PILOT_STEPS, self.steps_per_frame_min)} steps per frame over "
-                       f"its {PILOT_SECONDS:g} s; nothing while asleep")
+            n1 = max(PILOT_STEPS, self.steps_per_frame_min)
+            out.append(f"predicted cost: set by the pilot, which itself costs {3 * n1} steps "
+                       f"per frame over its {PILOT_SECONDS:g} s ({7 * n1} with its convergence "
+                       "check); nothing while asleep")
         elif self.fidelity == "auto":
             out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's steps at the start "
                        f"(error estimates included), nothing while asleep")
@@ -597,7 +603,8 @@ def pilot_text(pilot: dict) -> str:
     if pilot["converges"] is False:
         result = "not converging in the step (chaotic motion): the file's steps"
     else:
-        result = f"predicted error {pilot['predicted_px']:.2g} px"
+        result = (f"predicted largest error {pilot['predicted_px']:.2g} px (aim: "
+                  f"{PILOT_TARGET:g} x tolerance)")
     return f"pilot {steps} steps/frame over {pilot['seconds']:.3g} s: {result}"
 
 
@@ -649,7 +656,7 @@ def make_plan(sim) -> Plan:
                 steps_per_frame_start=s.steps_per_frame, steps_per_frame_max=s.steps_per_frame,
                 tolerance_px=None, metres_per_px=None, image_height=scene.render.height,
                 stability_limit_s=sim.dt_max, self_collision=self_collision,
-                colliders=colliders)
+                colliders=colliders, grid=(sim.model.nw, sim.model.nh))
     if auto:
         st = sim.stepper
         plan.steps_per_frame_min, plan.steps_per_frame_start = st.n_min, st.n

@@ -107,6 +107,51 @@ def test_tighter_tolerance_takes_more_steps_and_errs_less():
     assert tight <= 2 * 0.01 and loose <= 2 * 0.1
 
 
+# --- the classic model's pilot --------------------------------------------------------------
+
+def corner_hung(nw: int = 24) -> dict:
+    """A classic cloth held at two corners, no contact: its swing converges in the step at
+    first order (the stretch limit acts once per step)."""
+    return scene_dict(cloth_dict(nw, nw, ks=5000.0, density=150.0, damping=0.2,
+                                 thickness=0.0095, pinned=[(0, 0), (nw - 1, 0)]))
+
+
+def classic_error_at(data: dict, seconds: float, reference: np.ndarray) -> tuple[float, object]:
+    sim = pipeline.Simulation(data, shot_seconds=seconds)
+    frames = run_frames(sim, round(seconds * 90))
+    return screen_distance(sim.stepper.camera, frames[-1], reference), sim
+
+
+def test_the_pilot_chooses_the_classic_steps_for_the_tolerance():
+    # against the converged physics: 8x the file's steps, the drag rate held fixed
+    ref = corner_hung()
+    ref["simulation"]["steps_per_frame"] = 240
+    ref["cloth"]["damping"] = (1.0 - (1.0 - 0.002) ** (1.0 / 8)) * 100.0
+    reference = run_frames(pipeline.Simulation(ref), 90)[-1]
+    exact_error = screen_distance(pipeline.Simulation(auto(corner_hung())).stepper.camera,
+                                  run_frames(pipeline.Simulation(corner_hung()), 90)[-1],
+                                  reference)
+    steps, errors = {}, {}
+    for tolerance in (0.25, 2.0):
+        errors[tolerance], sim = classic_error_at(auto(corner_hung(), tolerance), 1.0, reference)
+        pilot = sim.stepper.pilot
+        assert pilot["seconds"] == pytest.approx(1.0) and pilot["steps"][:2] == (8, 16)
+        steps[tolerance] = sim.stepper.n
+        assert errors[tolerance] <= 2 * tolerance, (tolerance, errors, steps)
+    assert steps[0.25] > 30 > steps[2.0]  # more than the file's where it must, fewer where not
+    assert errors[0.25] < exact_error < errors[2.0]  # exact's 30 steps sit in between
+
+
+def test_the_pilot_is_skipped_under_contact_and_keeps_the_file_steps():
+    data = auto(scene_dict(cloth_dict(10, 10, thickness=0.005, ks=500.0),
+                           spheres=[((0.5, -0.3, 0.5), 0.2, 0.3)]))
+    sim = pipeline.Simulation(data)
+    run_frames(sim, 5)
+    assert sim.stepper.pilot is None and sim.stepper.chaotic
+    assert sim.stepper.steps_used == [30] * 5
+    assert "as the file says: under contact" in "\n".join(sim.plan.lines())
+
+
 # --- skipping passes changes nothing -------------------------------------------------------
 
 def skipping_pair(data: dict, frames: int):
