@@ -101,7 +101,8 @@ def test_killed_worker_mid_render_output_complete_and_identical(dask, tmp_path):
     """kill -9 the worker running the simulation once the first frames are written."""
     address, client = dask
     scene = write_scene(tmp_path, simulation__steps_per_frame=1500)
-    flags = ["--size", "32x32", "--duration", "1.2", "--quiet"]
+    # the course camera: the client does not simulate the shot ahead to frame it first
+    flags = ["--size", "32x32", "--duration", "1.2", "--quiet", "--set", "camera=course"]
     proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/many/",
                                             "--scheduler", address] + flags,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -283,10 +284,12 @@ def descendants(pid: int) -> set[int]:
 
 
 def test_sigterm_cancels_the_local_cluster_and_leaves_nothing(tmp_path):
+    # the course camera: no framing pass in the client (40 s of simulating ahead here)
+    # before the render tasks start writing frames
     scene = write_scene(tmp_path, simulation__steps_per_frame=3000)
     proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/frames/",
                                             "--workers", "2", "--size", "32x32",
-                                            "--duration", "2"],
+                                            "--duration", "2", "--set", "camera=course"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
     deadline = time.monotonic() + 300

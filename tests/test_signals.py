@@ -130,24 +130,46 @@ def test_sigterm_while_compiling(scene, tmp_path):
     stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, helper)
 
 
-@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
-def test_signal_while_simulating(warm, scene, tmp_path, sig):
-    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
+def simulate_30_s(scene: Path, tmp_path: Path, *sets: str) -> subprocess.Popen:
+    """A long render of `scene` to a GIF, an NPZ and OBJs (slow: 600 steps per frame)."""
+    sets = [a for s in ("simulation.steps_per_frame=600",) + sets for a in ("--set", s)]
+    return subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
                                             "--size", "16x16", "--duration", "30",
-                                            "--set", "simulation.steps_per_frame=600",
                                             "--export-npz", str(tmp_path / "p.npz"),
-                                            "--export-obj", str(tmp_path / "objs")],
+                                            "--export-obj", str(tmp_path / "objs")] + sets,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
+def test_signal_while_simulating(warm, scene, tmp_path, sig):
+    # the course camera: no framing pass, so the GIF's frame spool appears with the first
+    # simulated frame
+    proc = simulate_30_s(scene, tmp_path, "camera=course")
     wait_for(proc, lambda: temp_files(tmp_path, ".x.gif.*.frames"), "simulating")
     stop(proc, sig, tmp_path, {"s.json"})
+
+
+def test_signal_while_framing_the_shot(warm, scene, tmp_path):
+    # no camera: the whole shot is simulated ahead to frame it (40 s here) before any frame
+    # is spooled; the outputs' temporary files exist from the start
+    proc = simulate_30_s(scene, tmp_path)
+    wait_for(proc, lambda: len(temp_files(tmp_path, ".*.part")) == 3, "outputs opened")
+    time.sleep(1.0)
+    assert not temp_files(tmp_path, ".x.gif.*.frames")  # still framing
+    stop(proc, signal.SIGTERM, tmp_path, {"s.json"})
+
+
+# the tests below use the course camera, so that frames are drawn and encoded while the shot
+# is simulated (without a camera the whole shot is simulated ahead first, to frame it:
+# test_signal_while_framing_the_shot)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_while_rendering(warm, scene, tmp_path, sig):
     proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/frames/",
                                             "--size", "1024x1024", "--aa", "4",
-                                            "--duration", "30"],
+                                            "--duration", "30", "--set", "camera=course"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
     wait_for(proc, lambda: temp_files(tmp_path, ".frames.*.part/frame_00000.png"),
@@ -158,7 +180,8 @@ def test_signal_while_rendering(warm, scene, tmp_path, sig):
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_while_encoding_mp4_kills_ffmpeg(warm, scene, tmp_path, sig):
     proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.mp4"),
-                                            "--size", "256x256", "--duration", "60"],
+                                            "--size", "256x256", "--duration", "60",
+                                            "--set", "camera=course"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
                             env=child_env())
     def ffmpeg_running():
