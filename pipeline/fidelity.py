@@ -439,8 +439,8 @@ class AutoStepper:
         estimate asks for more steps than the file's, a third run at 4 n1 checks that the
         distances halve with the step (first order: d(n1, 2 n1) / d(2 n1, 4 n1) >=
         PILOT_CONVERGENCE). Where they do not (the motion depends on the step chaotically),
-        more steps buy no accuracy and the file's steps stay. A step count
-        the guard rejects is doubled. The state then goes back to where it was."""
+        more steps buy no accuracy and the file's steps stay. A step count the guard rejects
+        is doubled. The state then goes back to where it was."""
         frames = max(2, round(self.pilot_seconds / self.frame_dt))
         n1 = max(PILOT_STEPS, self.n_min)
         first, start = self.frame, self._save()
@@ -589,8 +589,8 @@ class AutoStepper:
     def summary_text(self) -> str:
         s = self.summary()
         pilot = "" if self.pilot is None else pilot_text(self.pilot) + ", "
-
-        return (f"auto: {pilot}steps/frame {s['steps_per_frame_min']}/{s['steps_per_frame_median']:g}/"
+        return (f"auto: {pilot}steps/frame {s['steps_per_frame_min']}/"
+                f"{s['steps_per_frame_median']:g}/"
                 f"{s['steps_per_frame_max']} (min/median/max), {s['frames_slept']} frames slept, "
                 f"{s['frames_redone']} redone, {s['steps_total']} steps in all, "
                 f"{s['self_collision_passes']} self-collision passes, colliders skipped on "
