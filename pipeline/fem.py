@@ -577,15 +577,20 @@ def _band(x, y, params, mode, band, bands, out):
 
 
 @njit(cache=True, nogil=True, parallel=True)
+def _bands_of_parity(x, y, params, mode, parity, bands, out):
+    """Add the elements of bands parity, parity + 2, ... to out, in parallel."""
+    for b in prange(bands // 2):
+        _band(x, y, params, mode, 2 * b + parity, bands, out)
+
+
+@njit(cache=True, nogil=True)
 def _element_pass(x, y, params, mode, out):
     """Add every element to out: the even bands in parallel, then the odd ones (a band has
     at least two cell rows, so bands running together touch disjoint points). One parallel
-    function for every mode: each costs seconds to compile."""
+    loop for every mode and both parities: each parallel loop costs seconds to compile."""
     bands = 2 * max(1, min(MAX_BANDS // 2, (params.nh - 1) // 4))
-    for b in prange(bands // 2):
-        _band(x, y, params, mode, 2 * b, bands, out)
-    for b in prange(bands // 2):
-        _band(x, y, params, mode, 2 * b + 1, bands, out)
+    for parity in range(2):
+        _bands_of_parity(x, y, params, mode, parity, bands, out)
 
 
 # --- public kernels -------------------------------------------------------------------------
