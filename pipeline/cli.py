@@ -268,6 +268,11 @@ class Plan:
     aa: int
     overrides: list[str] = field(default_factory=list)
 
+    @property
+    def shot_seconds(self) -> float:
+        """How long the shot is simulated (its last simulator frame's time)."""
+        return self.shot_frames[-1] / self.sim_fps
+
 
 def nearest_sim_frames(times: Sequence[Fraction | float], sim_fps: float) -> list[int]:
     """Simulator frame nearest to each time t: floor(t * sim_fps + 1/2) (ties go later)."""
@@ -310,9 +315,11 @@ def animation_times(args, kind: str | None) -> list[Fraction]:
     return output_times(n, fps)
 
 
-def frame_times(args, kind: str | None) -> list[Fraction]:
-    """The output frames' times (s) that args ask for, for an output of `kind`."""
-    times = animation_times(args, kind)
+def frame_times(args, kind: str | None,
+                animation: list[Fraction] | None = None) -> list[Fraction]:
+    """The output frames' times (s) that args ask for, for an output of `kind`, from the
+    animation's (animation_times, computed here unless given)."""
+    times = animation if animation is not None else animation_times(args, kind)
     if kind == "png":  # one frame: the last output frame, or the one --at names
         times = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
                  else times[-1]]
@@ -322,9 +329,10 @@ def frame_times(args, kind: str | None) -> list[Fraction]:
 def _plan(args, scene) -> Plan:
     kind, out = _output_kind(args)
     fps = args.fps if args.fps is not None else DEFAULT_FPS[kind]
-    times = frame_times(args, kind)
+    animation = animation_times(args, kind)
+    times = frame_times(args, kind, animation)
     sim_fps = float(scene.simulation.frames_per_sec)
-    shot = nearest_sim_frames(animation_times(args, kind), sim_fps)
+    shot = nearest_sim_frames(animation, sim_fps)
     sim_frames = nearest_sim_frames(times, sim_fps)
     shader = args.shader if args.shader is not None else scene.render.shader
     check_shader(shader)
@@ -480,7 +488,7 @@ def run(args, err: _Errors, source=None) -> int:
             from .frames import render_frame, scene_meshes
             from .simulation import Simulation
 
-            sim = Simulation(scene, shot_seconds=plan.shot_frames[-1] / plan.sim_fps)
+            sim = Simulation(scene, shot_seconds=plan.shot_seconds)
             return _execute(args, err, scene, plan, sim, writers, golden,
                             render_frame, scene_meshes, framing, t_wall)
         except BaseException:
@@ -686,17 +694,13 @@ def _pipelined(frames, consume, depth: int = 4, threads_per_stage: int | None = 
     A bounded queue keeps memory flat; an error in either thread stops both.
     threads_per_stage: numba threads for each stage's parallel kernels (thread-local).
     """
-    restore = None
-    if threads_per_stage is not None:
-        import numba
-
-        restore = numba.get_num_threads()
-        numba.set_num_threads(threads_per_stage)
-    try:
+    if threads_per_stage is None:
         _run_pipeline(frames, consume, depth, threads_per_stage)
-    finally:
-        if restore is not None:
-            numba.set_num_threads(restore)
+        return
+    from .simulation import numba_threads
+
+    with numba_threads(threads_per_stage):
+        _run_pipeline(frames, consume, depth, threads_per_stage)
 
 
 def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:

@@ -52,6 +52,11 @@ class Shot:
     def key(self, k: int) -> str:
         return f"{self.run}-frames-{k:06d}"
 
+    @property
+    def seconds(self) -> float:
+        """How long the shot is simulated (its last output frame's simulator time)."""
+        return self.sim_frames[-1] / self.sim_fps
+
 
 @dataclass
 class SimResult:
@@ -112,7 +117,7 @@ def simulate_shot(shot: Shot) -> SimResult:
     with warnings.catch_warnings(record=True) as caught, numba_threads(1):
         warnings.simplefilter("always")
         sim = Simulation(load_scene(shot.scene, list(shot.overrides)),
-                         shot_seconds=shot.sim_frames[-1] / shot.sim_fps)
+                         shot_seconds=shot.seconds)
         seconds = time.perf_counter() - t0  # simulating only, not waiting for the client
         current = 0
         for k, frames in enumerate(shot.chunks()):
@@ -153,7 +158,7 @@ def frame_shot_here(scene_file, overrides, plan):
     from .simulation import Simulation
 
     scene = load_scene(scene_file, list(overrides))
-    sim = Simulation(scene, shot_seconds=plan.shot_frames[-1] / plan.sim_fps)
+    sim = Simulation(scene, shot_seconds=plan.shot_seconds)
 
     def shot():
         current = 0

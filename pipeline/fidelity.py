@@ -214,18 +214,17 @@ class AutoStepper:
         #: the fewest stable steps per frame; the error estimate's coarse run takes no fewer
         self.floor = (math.ceil(self.frame_dt / (STABILITY_MARGIN * sim.dt_max))
                       if sim.step_limited and math.isfinite(sim.dt_max) else 1)
-        self.n_min = max(2, math.ceil(COARSE_RATIO * self.floor))
-        self.n_max = max(64 * self.n_min, 16 * s.steps_per_frame)
+        coarse = max(2, math.ceil(COARSE_RATIO * self.floor))  # an estimate's coarse run
+        self.n_max = max(64 * coarse, 16 * s.steps_per_frame)
         #: the classic model's step count is part of the model (its stretch limit acts once
         #: per step): chosen once for the shot by a pilot; the FEM's per frame by doubling
         self.adaptive = s.model != "classic"
+        self.n_min = coarse if self.adaptive else max(2, self.floor)
         self.pilot: dict | None = None  # the classic pilot's figures, once it has run
         #: the classic model's motion under contact or wind depends on the step chaotically
         #: (docs/fidelity.md): no pilot there, the file's steps
         self.chaotic = bool(scene.colliders or sim.system.self_collision or scene.wind)
         self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
-        if not self.adaptive:
-            self.n_min = max(2, self.floor)
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
@@ -480,11 +479,12 @@ class AutoStepper:
         (positions kept from an earlier run) is given, at 2 n side by side: (the largest
         screen distance between the two over the second half of the frames, the finer run's
         positions there as float32), or None when the guard rejected a step."""
-        states = [start] if against is not None else [start, start]
+        levels = (n,) if against is not None else (n, 2 * n)
+        states = [start] * len(levels)
         kept, worst, j = [], 0.0, 0
         for f in range(frames):
             x = []
-            for k, steps in enumerate((n,) if against is not None else (n, 2 * n)):
+            for k, steps in enumerate(levels):
                 self._restore(states[k])
                 self.frame = first + f
                 if not self._run(steps):

@@ -140,10 +140,7 @@ def serial_numba():
     one thread is several times faster. Set CLOTH_TEST_THREADS to override."""
     import os
 
-    import numba
+    from pipeline.simulation import numba_threads
 
-    before = numba.get_num_threads()
-    wanted = int(os.environ.get("CLOTH_TEST_THREADS", "1"))
-    numba.set_num_threads(min(max(wanted, 1), numba.config.NUMBA_NUM_THREADS))
-    yield
-    numba.set_num_threads(before)
+    with numba_threads(int(os.environ.get("CLOTH_TEST_THREADS", "1"))):
+        yield
