@@ -8,6 +8,11 @@ the cleanup itself is never cut short. A signal that was ignored when the block 
 (SIGHUP under nohup) stays ignored. The command exits with `exit_status(exc)`:
 128 + the signal number (130 SIGINT, 143 SIGTERM, 129 SIGHUP), as shells report a process
 a signal stopped.
+
+A signal that lands while LLVM is calling back into Python (numba compiling or loading a
+kernel: llvmlite's object cache is a ctypes callback) is held back: ctypes would print and
+drop the exception, losing the signal or leaving LLVM with a half-set buffer (a crash). It
+is sent again a moment later, until it finds the main thread back in plain Python.
 """
 from __future__ import annotations
 
@@ -17,6 +22,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+RESEND_SECONDS = 0.01  # how soon a held-back signal is sent again
 
 
 class Terminated(KeyboardInterrupt):
@@ -40,9 +46,19 @@ def handled() -> Iterator[None]:
         yield
         return
     fired = []
+    active = threading.Lock()  # held while the handlers are ours
+    main = threading.main_thread().ident
+
+    def resend(signum: int) -> None:
+        with active:
+            if previous and not fired:
+                signal.pthread_kill(main, signum)
 
     def handler(signum, frame):
         if fired:  # already stopping: let the cleanup finish
+            return
+        if _inside_llvmlite(frame):
+            threading.Timer(RESEND_SECONDS, resend, (signum,)).start()
             return
         fired.append(signum)
         raise Terminated(signum)
@@ -53,5 +69,17 @@ def handled() -> Iterator[None]:
     try:
         yield
     finally:
-        for sig, old in previous.items():
-            signal.signal(sig, old)
+        with active:
+            for sig, old in previous.items():
+                signal.signal(sig, old)
+            previous.clear()
+
+
+def _inside_llvmlite(frame) -> bool:
+    """Whether `frame` or a caller of it is llvmlite's: a ctypes callback from LLVM may be
+    running, where an exception would be dropped."""
+    while frame is not None:
+        if frame.f_globals.get("__name__", "").startswith("llvmlite."):
+            return True
+        frame = frame.f_back
+    return False

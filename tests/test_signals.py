@@ -208,3 +208,56 @@ def test_sigterm_stops_report_workers(warm, scene, tmp_path):
     seen = wait_for(proc, workers_running, "simulating in worker processes")
     kids = stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, seen)
     assert len(kids) >= 2
+
+
+# While numba compiles or loads a kernel, LLVM calls back into Python through ctypes
+# (llvmlite's object cache), and an exception raised in a ctypes callback is printed and
+# dropped: the signal was lost, or LLVM went on with a half-set buffer and crashed (CI,
+# 2026-11-24: test_signal_while_rendering ended in SIGSEGV). This child sends itself the
+# signal from inside that callback, so the handler runs there every time.
+SIGNAL_IN_LLVM_CALLBACK = """
+import os, signal, sys, time
+from numba import njit
+from numba.core.codegen import CPUCodeLibrary
+from pipeline.signals import Terminated, exit_status, handled
+
+hook = CPUCodeLibrary._object_getbuffer_hook.__func__
+sent = []
+
+def signalling_hook(cls, ll_module):
+    if not sent:
+        sent.append(os.getpid())
+        os.kill(os.getpid(), signal.SIGNUM)
+        for _ in range(100000):  # Python code: the handler runs here, inside the callback
+            pass
+    return hook(cls, ll_module)
+
+CPUCodeLibrary._object_getbuffer_hook = classmethod(signalling_hook)
+
+@njit
+def twice(x):
+    return 2.0 * x
+
+with handled():
+    try:
+        value = twice(1.0)
+        print("compiled", value, flush=True)
+        time.sleep(10)  # the deferred signal ends this at once
+        print("finished", flush=True)
+    except Terminated as exc:
+        print("stopped", exc.signum, file=sys.stderr, flush=True)
+        sys.exit(exit_status(exc))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_signal_inside_an_llvm_callback_is_deferred_not_lost(tmp_path, sig):
+    proc = subprocess.run([sys.executable, "-c", SIGNAL_IN_LLVM_CALLBACK.replace(
+        "SIGNUM", signal.Signals(sig).name)], capture_output=True, text=True,
+        env=child_env(NUMBA_CACHE_DIR=str(tmp_path)), timeout=WAIT)
+    assert proc.returncode == 128 + sig, proc.stderr
+    # the signal waited for LLVM to return, then stopped the run (in numba's Python code
+    # or in the sleep, whichever it found)
+    assert "finished" not in proc.stdout, proc.stdout
+    assert "Exception ignored" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr
