@@ -516,7 +516,8 @@ def _triangles(x, y, params, t, mode, lo, hi, out):
         return
     s, m = np.uint64(lo), np.uint64(stop - lo)
     c0, c1, c2 = np.uint64(lo + o0), np.uint64(lo + o1), np.uint64(lo + o2)
-    _deform_pass(x, c0, c1, c2, params, t, s, m, WU)
+    # Rows and flags go in as typed values, not literals: one compile of each pass.
+    _deform_pass(x, c0, c1, c2, params, t, s, m, np.int64(WU))
     if mode == DIAGONAL:
         _membrane_diagonal_pass(params, t, s, m, -1.0, -1.0, out, c0)
         _membrane_diagonal_pass(params, t, s, m, 1.0, 0.0, out, c1)
@@ -525,7 +526,7 @@ def _triangles(x, y, params, t, mode, lo, hi, out):
     if mode == FORCE:
         _stress_pass(params, t, s, m)
     else:
-        _deform_pass(y, c0, c1, c2, params, t, s, m, DWU)
+        _deform_pass(y, c0, c1, c2, params, t, s, m, np.int64(DWU))
         _hessian_pass(params, t, s, m, mode == FILTERED_PRODUCT)
     _spread_pass(params, t, s, m, -1.0, -1.0, out, c0)
     _spread_pass(params, t, s, m, 1.0, 0.0, out, c1)
@@ -550,15 +551,18 @@ def _hinges(x, y, params, k, mode, lo, hi, out):
     _normal_one_pass(x, c[0], c[1], c[2], params, s, m)
     _normal_two_pass(x, c[0], c[1], c[3], params, s, m)
     kb = params.k_bend
+    # Rows and flags go in as typed values, not literals: one compile of each pass.
     if mode == FORCE:
-        _scale_pass(params, k, THETA, -2.0 * kb, s, m)  # S_j = -dE/dtheta q_j
+        _scale_pass(params, k, np.int64(THETA), -2.0 * kb, s, m)  # S_j = -dE/dtheta q_j
     elif mode == FILTERED_PRODUCT:  # S_j = -2 k_bend f (d theta . y) q_j
-        _project_pass(y, c[0], c[1], c[2], params, N1, T1, s, m, False)
-        _project_pass(y, c[0], c[1], c[3], params, N2, T2, s, m, True)
-        _scale_pass(params, k, DTHETA, -2.0 * kb, s, m)
+        _project_pass(y, c[0], c[1], c[2], params, np.int64(N1), np.int64(T1), s, m,
+                      np.bool_(False))
+        _project_pass(y, c[0], c[1], c[3], params, np.int64(N2), np.int64(T2), s, m,
+                      np.bool_(True))
+        _scale_pass(params, k, np.int64(DTHETA), -2.0 * kb, s, m)
     else:  # DIAGONAL: S_j = f q_j, squared per vertex (and divided by f)
         params.scratch[DTHETA, start:stop] = 1.0
-        _scale_pass(params, k, DTHETA, 1.0, s, m)
+        _scale_pass(params, k, np.int64(DTHETA), 1.0, s, m)
     for j in range(4):
         _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
 

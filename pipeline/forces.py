@@ -124,41 +124,47 @@ def total_force(x, v, t, s, f):
     """f[:] = every force on the points at positions x, velocities v (3, N), time t, for the
     System `s`: gravity and the cloth's internal forces (classic: in the course code's order
     of summation), then wind."""
-    internal_forces(x, s, s.fem, f)
-    add_other_forces(x, v, t, s, f)
+    internal_forces(x, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
+                    s.mass, s.gravity, s.spring_force, f)
+    add_other_forces(x, v, t, s.wind, f)
+
+
+# The kernels below take the System's fields, not the System (see system.py: one compile
+# for every System type, and no half-second entry point that unboxes the whole System).
 
 
 @njit(cache=True, nogil=True)
-def internal_forces(x, s, fem, f):
-    """f[:] = gravity + the elastic forces of the System's model (fem = s.fem)."""
+def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
+                    spring_force, f):
+    """f[:] = gravity + the elastic forces: the FEM's (fem not None) or the springs'."""
     if fem is None:
-        spring_forces(x, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-                      s.gravity, s.spring_force, f)
+        spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
+                      f)
     else:
-        _gravity(s, f)
+        _gravity(mass, gravity, f)
         add_fem_forces(x, fem, f)
 
 
 @njit(cache=True, nogil=True)
-def _gravity(s, f):
+def _gravity(mass, gravity, f):
     for a in range(3):
         for p in range(f.shape[1]):
-            f[a, p] = s.mass[p] * s.gravity[a]
+            f[a, p] = mass[p] * gravity[a]
 
 
 @njit(cache=True, nogil=True)
 def external_force(x, v, t, s, f):
     """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
     treats the springs as constraints)."""
-    _gravity(s, f)
-    add_other_forces(x, v, t, s, f)
+    _gravity(s.mass, s.gravity, f)
+    add_other_forces(x, v, t, s.wind, f)
 
 
 @njit(cache=True, nogil=True)
-def add_other_forces(x, v, t, s, f):
+def add_other_forces(x, v, t, wind, f):
     """f += the forces beyond gravity and springs (each one function, off unless the scene
-    asks for it)."""
-    add_wind_force(x, v, t, s.wind, f)
+    asks for it: wind None is no wind)."""
+    add_wind_force(x, v, t, wind, f)
 
 
 # --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------

@@ -118,14 +118,18 @@ def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -
 GUARD_FACTOR = 2.0
 
 
+# The guard's and the passes' kernels take the System's fields, not the System: a kernel
+# that takes the System compiles again for each of its types (wind, FEM), and its Python
+# entry point alone (unboxing every array of the System) costs about 0.5 s to compile.
+# Those that must see the System are inlined into the integrator's stepping kernel.
+
+
 @njit(cache=True, nogil=True)
-def motion_summary(x, previous, system):
+def motion_summary(x, previous, x0, mass, g):
     """(all finite, sum over points of m |x - previous|^2, sum over points of m * the drop
-    along g since t = 0) for the guard; `previous` is the state one step earlier."""
-    g = system.gravity
+    along g since t = 0) for the guard; `previous` is the state one step earlier, x0 the
+    state at t = 0."""
     g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
-    x0 = system.x0
-    mass = system.mass
     finite = True
     moved_sq = drop = 0.0
     for p in range(x.shape[1]):
@@ -139,7 +143,7 @@ def motion_summary(x, previous, system):
 
 
 @njit(cache=True, nogil=True)
-def energy_guard(mv_sq_sum, mass_drop, system):
+def energy_guard(mv_sq_sum, mass_drop, g, total_mass, slack_speed):
     """Kinetic-energy bound of the divergence guard: returns (kinetic energy, bound) in J.
 
     No physical run gains more kinetic energy than gravity has done work on it, apart from
@@ -149,13 +153,12 @@ def energy_guard(mv_sq_sum, mass_drop, system):
     The guard allows GUARD_FACTOR times that (velocities are finite-difference estimates)
     plus M * slack_speed**2 / 2 (M the cloth's mass) for collision and constraint pushes,
     wind and moving colliders. `mv_sq_sum` is the sum of m |v|^2 over the points,
-    `mass_drop` the sum of m * drop.
+    `mass_drop` the sum of m * drop, g the gravity, total_mass and slack_speed the System's.
     """
-    g = system.gravity
     g_norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
     kinetic = 0.5 * mv_sq_sum
     bound = (GUARD_FACTOR * g_norm * max(mass_drop, 0.0)
-             + 0.5 * system.total_mass * system.slack_speed**2)
+             + 0.5 * total_mass * slack_speed**2)
     return kinetic, bound
 
 
@@ -206,7 +209,7 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
 # --- passes and guard shared by every integrator --------------------------------------------
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def drag_rate(system):
     """The scene's damping as a drag rate gamma (1/s): dv/dt = -gamma v loses exactly the
     fraction `system.damping` of the velocity over one step of `system.dt`, as the Verlet
@@ -216,7 +219,7 @@ def drag_rate(system):
     return -np.log(1.0 - system.damping) / system.dt
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def position_passes(x, last, system, t_start):
     """Steps 3-5 of the classic order on the free points of x (3, N), after an integrator's
     update from the start-of-step positions `last` (at time t_start) over one step:
@@ -233,15 +236,16 @@ def position_passes(x, last, system, t_start):
                      s.steps_per_frame, s.scratch)
     if not s.colliders_last:
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    _classic_stretch_limit(x, s, s.fem)
+    _classic_stretch_limit(x, s.fem, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned,
+                           s.mask)
     if s.colliders_last:
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
 
 @njit(cache=True, nogil=True)
-def _classic_stretch_limit(x, s, fem):
+def _classic_stretch_limit(x, fem, offsets, exist_bits, limit, limit_sq_lo, pinned, mask):
     if fem is None:  # numba prunes the call for the FEM model
-        limit_stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+        limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, mask)
 
 
 @njit(cache=True, nogil=True)
@@ -255,10 +259,12 @@ def corrected_velocities(x, predicted, v, pinned, dt):
             v[a, p] += (x[a, p] - predicted[a, p]) / dt
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def step_guard(x, last, system):
     """The shared divergence guard after one step from `last` to x: (ok, kinetic, bound),
     with velocities estimated as (x - last) / dt, exactly as the Verlet integrator does."""
-    finite, v_sq, drop = motion_summary(x, last, system)
-    kinetic, bound = energy_guard(v_sq / (system.dt * system.dt), drop, system)
+    s = system
+    finite, v_sq, drop = motion_summary(x, last, s.x0, s.mass, s.gravity)
+    kinetic, bound = energy_guard(v_sq / (s.dt * s.dt), drop, s.gravity, s.total_mass,
+                                  s.slack_speed)
     return finite and kinetic <= bound, kinetic, bound

@@ -33,7 +33,8 @@ from .progress import bar
 # Kernels compiled in this process / in the helper on a cold start, with their cold compile
 # CPU times in seconds (the README's first command, 2026-11-24), which balance the two and
 # give the estimate of the first-run message. The helper then compiles the renderer's.
-HERE = {"pipeline.colliders:collide_all": 11.8, "pipeline.system:step_guard": 2.1}
+HERE = {"pipeline.colliders:collide_all": 11.8, "pipeline.system:motion_summary": 0.5,
+        "pipeline.system:energy_guard": 0.2}
 HELPER = {"pipeline.forces:total_force": 7.5, "pipeline.system:_classic_stretch_limit": 3.7,
           "pipeline.reach:reach_check": 0.9, "pipeline.self_collision:self_collide": 5.0}
 RENDER_SECONDS = 10.0  # every renderer kernel for one shader
@@ -79,12 +80,14 @@ def sim_jobs(system) -> tuple[list[Job], list[Job]]:
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
     args = {"pipeline.forces:total_force": (x, v, 0.0, s, f),
-            "pipeline.system:step_guard": (x, last, s),
+            "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
+            "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass, s.slack_speed),
             "pipeline.colliders:collide_all": (x, last, s.pinned, s.colliders, 0.0, s.dt),
             "pipeline.self_collision:self_collide": (
                 x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
                 s.scratch),
-            "pipeline.system:_classic_stretch_limit": (x, s, s.fem),
+            "pipeline.system:_classic_stretch_limit": (x, s.fem, s.offsets, s.exist_bits, s.limit,
+                                                       s.limit_sq_lo, s.pinned, s.mask),
             "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
     return ([Job(n, args[n]) for n in HERE if n in args],
             [Job(n, args[n]) for n in HELPER if n in args])

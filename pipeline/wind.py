@@ -227,8 +227,9 @@ def _band(x, v, w, f, band):
     m = (c1 - a0) * nw - 1  # the last column's cells wrap around: zeroed below
     if m > 0:
         drag, lift = np.float32(w.drag), np.float32(w.lift)
-        _triangles(point, 0, nw, 1, m, drag, lift, tri[0], t0)  # (A, C, B)
-        _triangles(point, 1, nw, nw + 1, m, drag, lift, tri[1], t0)  # (B, C, D)
+        zero, one = np.int64(0), np.int64(1)  # not literals: one compile of _triangles
+        _triangles(point, zero, nw, one, m, drag, lift, tri[0], t0)  # (A, C, B)
+        _triangles(point, one, nw, nw + one, m, drag, lift, tri[1], t0)  # (B, C, D)
         for t in range(t0 + nw - 1, t0 + m, nw):
             for a in range(3):
                 tri[0, a, t] = 0.0
@@ -239,7 +240,7 @@ def _band(x, v, w, f, band):
 @njit(cache=True, nogil=True, parallel=True)
 def _all_bands(x, v, w, f):
     for band in prange(w.point.shape[0]):
-        _band(x, v, w, f, band)
+        _band(x, v, w, f, np.int64(band))  # as below: one compile of _band
 
 
 @njit(cache=True, nogil=True)
@@ -250,7 +251,7 @@ def add_wind_force(x, v, t, w, f):
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
     if w.point.shape[0] == 1:
-        _band(x, v, w, f, 0)  # no thread launch for a single band
+        _band(x, v, w, f, np.int64(0))  # no thread launch for a single band
     else:
         _all_bands(x, v, w, f)
 

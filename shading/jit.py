@@ -19,9 +19,17 @@ import os
 from numba import njit, prange
 from numba.core import caching
 
-__all__ = ["njit", "prange"]
+__all__ = ["njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
+
+
+def read_only(array):
+    """A read-only view of `array`. numba types read-only and writable arrays apart, so a
+    kernel's inputs passed always one way compile once, not twice."""
+    view = array.view()
+    view.flags.writeable = False
+    return view
 
 
 @contextlib.contextmanager

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from .jit import njit
+from .jit import njit, read_only
 
 CLOTH_COLOUR = (1.0, 1.0, 1.0)
 SPHERE_COLOUR = (1.0, 1.0, 1.0)
@@ -147,24 +147,16 @@ def _normals_tangents(pos, uv, tris, weld_n, weld_t, nrm, tan):
 _NO_WELD = np.zeros(0, np.int64)
 
 
-def _read_only(array: np.ndarray) -> np.ndarray:
-    """A read-only view: numba types read-only and writable arrays apart, so passing the
-    inputs one way keeps _normals_tangents at one compiled signature (not two)."""
-    view = array.view()
-    view.flags.writeable = False
-    return view
-
-
 def normals_tangents(positions, uvs, triangles, weld_n=None, weld_t=None):
     """(normals, tangents) of a triangle mesh per SPEC section 3."""
-    positions = np.ascontiguousarray(positions, dtype=np.float64)
-    uvs = _read_only(np.ascontiguousarray(uvs, dtype=np.float64))
-    triangles = _read_only(np.ascontiguousarray(triangles, dtype=np.int32))
+    positions = read_only(np.ascontiguousarray(positions, dtype=np.float64))
+    uvs = read_only(np.ascontiguousarray(uvs, dtype=np.float64))
+    triangles = read_only(np.ascontiguousarray(triangles, dtype=np.int32))
     nv = positions.shape[0]
-    weld_n = _read_only(_NO_WELD if weld_n is None
-                        else np.ascontiguousarray(weld_n, dtype=np.int64))
-    weld_t = _read_only(_NO_WELD if weld_t is None
-                        else np.ascontiguousarray(weld_t, dtype=np.int64))
+    weld_n = read_only(_NO_WELD if weld_n is None
+                       else np.ascontiguousarray(weld_n, dtype=np.int64))
+    weld_t = read_only(_NO_WELD if weld_t is None
+                       else np.ascontiguousarray(weld_t, dtype=np.int64))
     nrm = np.empty((nv, 3))
     tan = np.empty((nv, 3))
     _normals_tangents(positions, uvs, triangles, weld_n, weld_t, nrm, tan)

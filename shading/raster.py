@@ -229,8 +229,7 @@ def setup_triangles(tris, clip, vcode, nv, W, H, vx, vy, vz, viw, wb, pv, pflag,
     vx rows - nv) the caller grows the arrays and calls again."""
     band_start[:] = 0
     cap = pv.shape[0]
-    m = 0
-    e = 0
+    m = e = np.int64(0)  # not the literal 0: _clip_tri would compile for both
     for t in range(tris.shape[0]):
         a = tris[t, 0]
         b = tris[t, 1]

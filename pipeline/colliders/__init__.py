@@ -158,7 +158,7 @@ def pose_at(keys, count, t, out):
     k2 = min(k + 1, count - 1)
     for i in range(3):  # translation, then the angles: no scratch array per step
         out[9 + i] = keys[k, 1 + i] + w * (keys[k2, 1 + i] - keys[k, 1 + i])
-    _euler_into(out, 0, keys[k, 4] + w * (keys[k2, 4] - keys[k, 4]),
+    _euler_into(out, np.int64(0), keys[k, 4] + w * (keys[k2, 4] - keys[k, 4]),  # as from Python
                 keys[k, 5] + w * (keys[k2, 5] - keys[k, 5]),
                 keys[k, 6] + w * (keys[k2, 6] - keys[k, 6]))
 

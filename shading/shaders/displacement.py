@@ -1,7 +1,7 @@
 """displacement: every vertex moves to p + n h(uv) k_h before projection; fragments are
 shaded as bump at the displaced position with the undisplaced normal and tangent."""
 import numpy as np
-from ..jit import njit
+from ..jit import njit, read_only
 
 from ..textures import bilinear
 from . import Shader
@@ -19,7 +19,7 @@ def _displace(pos, nrm, uvs, kh, hmap, out):
 def vertex(positions, normals, uvs, prm, hmap, out=None):
     if out is None:
         out = np.empty_like(positions)
-    _displace(positions, normals, uvs, prm[K_H], hmap, out)
+    _displace(read_only(positions), read_only(normals), uvs, prm[K_H], hmap, out)
     return out
 
 
