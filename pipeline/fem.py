@@ -587,7 +587,7 @@ def _bands_of_parity(x, y, params, mode, parity, bands, out):
         _band(x, y, params, mode, 2 * b + parity, bands, out)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _element_pass(x, y, params, mode, out):
     """Add every element to out: the even bands in parallel, then the odd ones (a band has
     at least two cell rows, so bands running together touch disjoint points). One parallel
@@ -633,7 +633,7 @@ def fem_energy(x: np.ndarray, params: FemParams) -> float:
     return energy
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def add_fem_forces(x: np.ndarray, params: FemParams, f: np.ndarray) -> None:
     """f += -dE/dx at positions x (3, N): the exact elastic forces."""
     _element_pass(x, x, params, np.int64(FORCE), f)  # a run-time mode: one compiled pass

@@ -160,7 +160,7 @@ def external_force(x, v, t, s, f):
     add_other_forces(x, v, t, s.wind, f)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def add_other_forces(x, v, t, wind, f):
     """f += the forces beyond gravity and springs (each one function, off unless the scene
     asks for it: wind None is no wind)."""
