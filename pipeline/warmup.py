@@ -31,14 +31,18 @@ import numpy as np
 from .progress import bar
 
 # Kernels compiled in this process / in the helper on a cold start, with their cold compile
-# CPU times in seconds (the README's first command, 2026-11-24), which balance the two and
-# give the estimate of the first-run message. The helper then compiles the renderer's.
-HERE = {"pipeline.colliders:collide_all": 11.8, "pipeline.system:motion_summary": 0.5,
-        "pipeline.system:energy_guard": 0.2}
-HELPER = {"pipeline.forces:total_force": 7.5, "pipeline.system:_classic_stretch_limit": 3.7,
-          "pipeline.reach:reach_check": 0.9, "pipeline.self_collision:self_collide": 5.0}
-RENDER_SECONDS = 10.0  # every renderer kernel for one shader
-STEP_SECONDS = 11.0  # the integrator's stepping kernel and the position passes, after both
+# CPU times in seconds (the README's first command, 2026-11-24, one after the other in one
+# process), which balance the two and give the estimate of the first-run message. The helper
+# then compiles the renderer's while this process compiles the stepping kernel, so the split
+# evens HERE + STEP against HELPER + RENDER (21.2 s each). Two compiles at once each run
+# about 1.25x slower (measured: collide_all 15.2 s, the renderer 13.4 s): CONTENTION.
+HERE = {"pipeline.colliders:collide_all": 11.3, "pipeline.system:motion_summary": 0.2,
+        "pipeline.system:energy_guard": 0.3, "pipeline.self_collision:self_collide": 5.2}
+HELPER = {"pipeline.forces:total_force": 5.8, "pipeline.system:_classic_stretch_limit": 2.9,
+          "pipeline.reach:reach_check": 0.8}
+RENDER_SECONDS = 11.7  # every renderer kernel for one shader
+STEP_SECONDS = 4.2  # the integrator's stepping kernel (position passes and guard inlined)
+CONTENTION = 1.25
 
 
 @dataclass
@@ -134,7 +138,7 @@ def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: boo
     stepping = STEP_SECONDS if step else 0.0
     rendering = RENDER_SECONDS if render else 0.0
     if render and (here or helper or step):
-        return max(max(mine, theirs) + stepping, theirs + rendering)
+        return CONTENTION * max(max(mine, theirs) + stepping, theirs + rendering)
     return mine + theirs + stepping + rendering
 
 
