@@ -6,7 +6,8 @@ functions choose; numba compiles only the branch of the System's model).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
 adds to f and does nothing when its params are None (numba then prunes its code), packed
-into the System by system.build_system and called from `add_other_forces`.
+into the System by system.build_system and called from `add_other_forces`, which
+`total_force` and `external_force` hand each force's params (not the System: see below).
 
 Positions and forces are structure-of-arrays, shape (3, N). The spring forces are computed
 direction by direction into `spring_force` (6, 3, N + pad): contiguous loops the compiler
