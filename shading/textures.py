@@ -151,15 +151,6 @@ def _resolve(kind: str, value):
 # --------------------------------------------------------------------------- sampling
 
 @njit(cache=True, inline="always")
-def _texel(i, n, repeat):
-    if repeat:
-        if i < 0 or i >= n:  # (the modulo only when needed: an integer division)
-            return i % n
-        return i
-    return min(max(i, 0), n - 1)
-
-
-@njit(cache=True, inline="always")
 def bilinear(img, u, v, repeat):
     """Bilinear sample of img (h, w, 3) at (u, v); repeat=True wraps, False clamps."""
     h = img.shape[0]
@@ -170,10 +161,18 @@ def bilinear(img, u, v, repeat):
     yf = math.floor(y)
     fx = x - xf
     fy = y - yf
-    i0 = _texel(np.int64(xf), w, repeat)
-    i1 = _texel(np.int64(xf) + 1, w, repeat)
-    j0 = _texel(np.int64(yf), h, repeat)
-    j1 = _texel(np.int64(yf) + 1, h, repeat)
+    i0, j0 = np.int64(xf), np.int64(yf)
+    i1, j1 = i0 + 1, j0 + 1
+    # Wrap or clamp written out, not a helper: numba's inliner copies a helper's IR at every
+    # call (4 per sample, 12 for bump: most of its first compile).
+    if repeat:  # the modulo only when needed: an integer division
+        if i0 < 0 or i1 >= w:
+            i0, i1 = i0 % w, i1 % w
+        if j0 < 0 or j1 >= h:
+            j0, j1 = j0 % h, j1 % h
+    else:
+        i0, i1 = min(max(i0, 0), w - 1), min(max(i1, 0), w - 1)
+        j0, j1 = min(max(j0, 0), h - 1), min(max(j1, 0), h - 1)
     w00 = (1.0 - fx) * (1.0 - fy)
     w10 = fx * (1.0 - fy)
     w01 = (1.0 - fx) * fy
