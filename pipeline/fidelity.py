@@ -273,6 +273,15 @@ class AutoStepper:
         a[:, system.pinned != 0] = 0.0
         return a
 
+    def _verlet_velocity(self, system, dt: float, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """(v, a) at x of the Verlet state stepped at dt: a = F/m at x (forces seeing the
+        step's velocity (x - x_last) / dt) and, with (E, G) = _lag(dt), v = (x - x_last + a G)
+        / E (exact for a constant acceleration under the drag)."""
+        state = self.sim._state
+        a = self._acceleration(system, t, (state.x - state.last) / dt)
+        e, g = self._lag(dt)
+        return (state.x - state.last + a * g) / e, a
+
     def _set_step(self, system, t: float) -> None:
         """Give the Verlet state the step of `system`, keeping the velocity at x: with a = F/m
         at x and (E, G) = _lag, v = (x - x_last + a G_old) / E_old and x_last = x - v E + a G
@@ -285,11 +294,11 @@ class AutoStepper:
         old, new = self.state_dt, system.dt
         if self._started and old == new:
             return
-        v = (state.x - state.last) / old if self._started else np.zeros_like(state.x)
-        a = self._acceleration(system, t, v)
         if self._started:
-            e_old, g_old = self._lag(old)
-            v = (state.x - state.last + a * g_old) / e_old
+            v, a = self._verlet_velocity(system, old, t)
+        else:
+            v = np.zeros_like(state.x)
+            a = self._acceleration(system, t, v)
         e_new, g_new = self._lag(new)
         free = system.pinned == 0
         state.last[:, free] = (state.x - v * e_new + a * g_new)[:, free]
@@ -346,10 +355,10 @@ class AutoStepper:
         """Positions (N, 3) `persist` seconds ahead at the state's velocity at x."""
         state, system = self.sim._state, self.system_for(n)
         t = (self.frame + 1) * self.frame_dt
-        v = state.velocity(system)
         if self.sim.integrator == "verlet":  # (x - x_last) / dt lags by half a step
-            e, g = self._lag(system.dt)
-            v = (state.x - state.last + g * self._acceleration(system, t, v)) / e
+            v = self._verlet_velocity(system, system.dt, t)[0]
+        else:
+            v = state.velocity(system)
         return (state.x + v * self.persist).T
 
     def _arm_passes(self) -> None:
