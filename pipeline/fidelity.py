@@ -23,8 +23,10 @@ that no point ends a step inside one. Then:
    docs/fidelity.md), C / n, and C = 2 n1 d from the two runs' screen distance d, taken at
    its largest over the pilot's second half (the swing after the release; the release's
    first snap is left out, docs/fidelity.md); n is the fewest steps that bring C / n to
-   PILOT_TARGET tolerances (a third run at 4 n1 checks the first order). The shot then runs
-   from the start at n. Under contact, self-collision or wind the classic model's motion
+   PILOT_TARGET tolerances (a third run at that n, at least 3 n1, checks the first order).
+   The shot goes on from the pilot run with the fewest steps >= n where that costs no more
+   than starting again at n (the run's frames are replayed: the same frames bit for bit),
+   else starts again at n. Under contact, self-collision or wind the classic model's motion
    depends on the step chaotically, and the file's steps stay (no pilot).
 2. The integrator: Verlet, unless its stability floor makes implicit Euler cheaper per frame
    at the measured cost ratio of one implicit step to one Verlet step (IMPLICIT_COST).
@@ -71,9 +73,15 @@ PILOT_STEPS = 8  # ... at n1 >= this many steps per frame (and the stability flo
 #: tolerances (calibrated on pinned2 and pinned4: the error at 1 s and 3 s is then about
 #: one tolerance or less; docs/fidelity.md)
 PILOT_TARGET = 2.0
-#: the pilot's distances must shrink by this factor from (n1, 2 n1) to (2 n1, 4 n1) for more
-#: steps to count as more accuracy (first order: 2; chaotic motion: about 1)
-PILOT_CONVERGENCE = 1.5
+#: the third run's distance from the 2 n1 run may exceed first order's prediction from
+#: (n1, 2 n1) by at most this factor for more steps to count as more accuracy (at n3 = 4 n1
+#: chaotic motion comes out near 2, first order near 1)
+PILOT_CONVERGENCE = 4.0 / 3.0
+#: the shot keeps the third run's steps n3 when the finer pair's estimate asks for at most
+#: this many times n3 (the estimate's own spread: C from (n1, 2 n1) and from (2 n1, n3)
+#: differ by 6-8 % on pinned2 and pinned4)
+PILOT_SLACK = 1.15
+REPLAYED = ("x", "last", "v")  # a pilot run's state kept per frame, to replay in the shot
 #: cost of one implicit-Euler step in Verlet steps (benchmarks/sim.py --features, 2026-11-23)
 IMPLICIT_COST = {"classic": 20.0, "fem": 41.9}
 
@@ -147,8 +155,9 @@ class Plan:
                                                                           self.chaotic):
             n1 = max(PILOT_STEPS, self.steps_per_frame_min)
             out.append(f"predicted cost: set by the pilot, which itself costs {3 * n1} steps "
-                       f"per frame over its {PILOT_SECONDS:g} s ({7 * n1} with its convergence "
-                       "check); nothing while asleep")
+                       f"per frame over its {PILOT_SECONDS:g} s, plus its third run's where it "
+                       "checks the convergence (the shot goes on from a pilot run where that "
+                       "is cheaper); nothing while asleep")
         elif self.fidelity == "auto":
             out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's steps at the start "
                        f"(error estimates included), nothing while asleep")
@@ -168,8 +177,8 @@ def metres_per_pixel(camera, points: np.ndarray) -> float:
 
 def screen_distance(camera, a: np.ndarray, b: np.ndarray) -> float:
     """Largest distance in pixels between the projections of a[i] and b[i], (N, 3) each."""
-    pa, pb = camera.project(a)[:, :2], camera.project(b)[:, :2]
-    d = np.sqrt(np.sum((pa - pb) ** 2, axis=1))
+    p = camera.project(np.concatenate((a, b)))[:, :2]  # one projection for both
+    d = np.sqrt(np.sum((p[:len(a)] - p[len(a):]) ** 2, axis=1))
     return float(np.max(d)) if len(d) else 0.0
 
 
@@ -224,7 +233,11 @@ class AutoStepper:
         #: the classic model's motion under contact or wind depends on the step chaotically
         #: (docs/fidelity.md): no pilot there, the file's steps
         self.chaotic = bool(scene.colliders or sim.system.self_collision or scene.wind)
+        self.shot_seconds = shot_seconds
         self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
+        #: (steps per frame, per-frame states, end state) of the pilot run the shot goes on
+        #: from, while its frames are replayed
+        self.replay: tuple | None = None
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
@@ -398,6 +411,9 @@ class AutoStepper:
             self.check_every = 1  # check the first frame awake
         if not self.adaptive and not self.chaotic and self.pilot is None:
             self._run_pilot()
+        if self.replay is not None:
+            self._replay_frame()
+            return
         self._arm_passes()
         start = self.sim._state.x.T.copy()
         target = self.safety * self.tolerance
@@ -443,18 +459,21 @@ class AutoStepper:
 
     def _run_pilot(self) -> None:
         """Choose the classic model's steps per frame for the shot (module docstring, 1).
-        The next pilot_seconds run at n1 and 2 n1 steps per frame side by side; where their
-        estimate asks for more steps than the file's, a third run at 4 n1 checks that the
-        distances halve with the step (first order: d(n1, 2 n1) / d(2 n1, 4 n1) >=
-        PILOT_CONVERGENCE). Where they do not (the motion depends on the step chaotically),
-        more steps buy no accuracy and the file's steps stay. A step count the guard rejects
-        is doubled. The state then goes back to where it was."""
+        The next pilot_seconds run at n1 and 2 n1 steps per frame side by side. Where their
+        estimate wants at least 3 n1 steps, or more than both 2 n1 and the file's, a third
+        run at that many (at least 3 n1, so that the check below can tell) checks that the
+        error is first order: its distance from the 2 n1 run must be at most
+        PILOT_CONVERGENCE times what first order predicts.
+        Where it is not (the motion depends on the step chaotically), more steps buy no
+        accuracy and the file's steps stay. A step count the guard rejects is doubled. The
+        shot then goes on from a pilot run with enough steps where that costs no more than
+        starting again (its frames are replayed), else starts again at the steps chosen."""
         frames = max(2, round(self.pilot_seconds / self.frame_dt))
         n1 = max(PILOT_STEPS, self.n_min)
         first, start = self.frame, self._save()
         while True:
-            fine = self._pilot_pair(n1, frames, first, start, None)
-            if fine is not None:
+            pair = self._pilot_runs((n1, 2 * n1), frames, first, start, None)
+            if pair is not None:
                 break
             self.rejected += 1
             if 4 * n1 > self.n_max:
@@ -462,34 +481,61 @@ class AutoStepper:
                 self.frame = first
                 self._diverged(2 * n1)
             n1 *= 2
-        d1, kept = fine
-        file_steps = self.scene.simulation.steps_per_frame
+        d1, kept, runs = pair
         constant = 2.0 * n1 * d1  # the error of n steps per frame: constant / n pixels
-        converges = None
-        if constant / (PILOT_TARGET * self.tolerance) > file_steps and 4 * n1 <= self.n_max:
-            finer = self._pilot_pair(4 * n1, frames, first, start, kept)
-            d2 = finer[0] if finer is not None else math.inf
-            converges = d1 >= PILOT_CONVERGENCE * d2
+        want = self._pilot_steps(constant)
+        steps, converges = (n1, 2 * n1), None
+        if want >= 3 * n1 or want > max(2 * n1, self.scene.simulation.steps_per_frame):
+            n3 = min(self.n_max, max(want, 3 * n1))
+            third = self._pilot_runs((n3,), frames, first, start, kept)
+            d2 = third[0] if third is not None else math.inf
+            converges = d2 <= PILOT_CONVERGENCE * d1 * (1.0 - 2.0 * n1 / n3)
+            steps = (n1, 2 * n1, n3)
             if converges:
-                constant = 4.0 * n1 * d2
+                constant = d2 / (0.5 / n1 - 1.0 / n3)
+                want, runs = self._pilot_steps(constant), third[2]
+                if want <= PILOT_SLACK * n3:  # within the estimate's own spread: keep n3
+                    want = min(want, n3)
+            else:
+                want, runs = self._pilot_steps(0.0, self.scene.simulation.steps_per_frame), {}
         self._restore(start)
         self.frame = first
-        n = (file_steps if converges is False else
-             math.ceil(constant / (PILOT_TARGET * self.tolerance)))
-        self.n = int(min(self.n_max, max(self.n_min, n)))
-        self.pilot = {"steps": (n1, 2 * n1) if converges is None else (n1, 2 * n1, 4 * n1),
-                      "seconds": frames * self.frame_dt, "distance_px": d1,
+        self.n = want
+        self.replay, self.replay_first = self._pilot_reuse(runs, want, frames), first
+        if self.replay is not None:
+            self.n = self.replay[0]
+        self.pilot = {"steps": steps, "seconds": frames * self.frame_dt, "distance_px": d1,
                       "converges": converges, "constant_px": constant,
-                      "predicted_px": None if converges is False else constant / self.n}
+                      "predicted_px": None if converges is False else constant / self.n,
+                      "reused": self.replay is not None}
 
-    def _pilot_pair(self, n: int, frames: int, first: int, start: dict,
-                    against: list | None) -> tuple[float, list] | None:
-        """Run the pilot's frames from `start` at n steps per frame and, unless `against`
-        (positions kept from an earlier run) is given, at 2 n side by side: (the largest
-        screen distance between the two over the second half of the frames, the finer run's
-        positions there as float32), or None when the guard rejected a step."""
-        levels = (n,) if against is not None else (n, 2 * n)
+    def _pilot_steps(self, constant: float, steps: int | None = None) -> int:
+        """The fewest steps per frame that bring constant / n to PILOT_TARGET tolerances (or
+        `steps`), within [n_min, n_max]."""
+        if steps is None:
+            steps = math.ceil(constant / (PILOT_TARGET * self.tolerance))
+        return int(min(self.n_max, max(self.n_min, steps)))
+
+    def _pilot_reuse(self, runs: dict, want: int, frames: int) -> tuple | None:
+        """(n, frames, end state) of the pilot run the shot goes on from: the fewest steps at
+        least `want` whose remaining frames cost no more than the whole shot at `want` (an
+        unknown shot length counts as endless), or None to start again."""
+        shot = (round(self.shot_seconds / self.frame_dt) if self.shot_seconds else math.inf)
+        for n in sorted(runs):
+            if n >= want and (n == want or n * (shot - frames) <= want * shot):
+                return (n, *runs[n])
+        return None
+
+    def _pilot_runs(self, levels: tuple, frames: int, first: int, start: dict,
+                    against: list | None) -> tuple[float, list, dict] | None:
+        """Run the pilot's frames from `start` at each of `levels` steps per frame side by
+        side: (the largest screen distance over the second half of the frames between the
+        first two levels, or between the first and `against` (positions kept from an earlier
+        run), the second level's positions there as float32, and per level its frames'
+        positions and velocity state and its end state), or None when the guard rejected a
+        step."""
         states = [start] * len(levels)
+        records: list[list] = [[] for _ in levels]
         kept, worst, j = [], 0.0, 0
         for f in range(frames):
             x = []
@@ -499,6 +545,7 @@ class AutoStepper:
                 if not self._run(steps):
                     return None
                 states[k] = self._save()
+                records[k].append({key: states[k][key] for key in REPLAYED})
                 x.append(self.sim._state.x.T.copy())
             if 2 * f < frames:  # the second half: the swing after the release
                 continue
@@ -507,7 +554,21 @@ class AutoStepper:
             worst = max(worst, screen_distance(self.camera, x[0], other))
             if against is None:
                 kept.append(x[1].astype(np.float32))
-        return worst, kept
+        return worst, kept, {n: (records[k], states[k]) for k, n in enumerate(levels)}
+
+    def _replay_frame(self) -> None:
+        """The next frame of the pilot run the shot goes on from, as that run left it."""
+        n, records, end = self.replay
+        state, k = self.sim._state, self.frame - self.replay_first
+        start = state.x.T.copy()
+        for key in REPLAYED:
+            np.copyto(getattr(state, key), records[k][key])
+        if k + 1 == len(records):
+            self._restore(end)
+            self.replay = None
+        self.steps_used.append(n)
+        self.frame += 1
+        self._after_frame(start)
 
     def _next_steps(self, n: int, ratio: float) -> int:
         """The next frame's steps from this one's error ratio (error / target): up if above
@@ -614,7 +675,8 @@ def pilot_text(pilot: dict) -> str:
     else:
         result = (f"predicted largest error {pilot['predicted_px']:.2g} px (aim: "
                   f"{PILOT_TARGET:g} x tolerance)")
-    return f"pilot {steps} steps/frame over {pilot['seconds']:.3g} s: {result}"
+    reused = ", the shot goes on from its run" if pilot["reused"] else ""
+    return f"pilot {steps} steps/frame over {pilot['seconds']:.3g} s: {result}{reused}"
 
 
 def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:

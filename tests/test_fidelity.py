@@ -142,6 +142,22 @@ def test_the_pilot_chooses_the_classic_steps_for_the_tolerance():
     assert errors[0.25] < exact_error < errors[2.0]  # exact's 30 steps sit in between
 
 
+@pytest.mark.parametrize("tolerance, run", [(0.1, 2), (0.5, 1), (3.0, 0)])
+def test_a_shot_going_on_from_a_pilot_run_is_the_shot_started_again(tolerance, run):
+    # 1.5 s: the pilot's first second is replayed from its run (the third, at the steps its
+    # estimate asked for, or the pair's finer or coarser), the rest continues from it
+    kept = pipeline.Simulation(auto(corner_hung(12), tolerance), shot_seconds=1.5)
+    frames = run_frames(kept, 135)
+    pilot = kept.stepper.pilot
+    assert pilot["reused"] and kept.stepper.n == pilot["steps"][run]
+    assert kept.stepper.steps_used == [kept.stepper.n] * 135
+    again = pipeline.Simulation(auto(corner_hung(12), tolerance), shot_seconds=1.5)
+    again.stepper.pilot, again.stepper.n = pilot, kept.stepper.n  # no pilot: from the start
+    for a, b in zip(frames, run_frames(again, 135)):
+        np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(kept.velocities, again.velocities)
+
+
 def test_the_pilot_is_skipped_under_contact_and_keeps_the_file_steps():
     data = auto(scene_dict(cloth_dict(10, 10, thickness=0.005, ks=500.0),
                            spheres=[((0.5, -0.3, 0.5), 0.2, 0.3)]))
@@ -283,7 +299,9 @@ def test_render_summary_says_what_auto_used(tmp_path, capsys):
     assert cli.main([str(path), "--fidelity", "auto", "--export-npz", str(out),
                      "--frames", "5"]) == 0
     err = capsys.readouterr().err
-    # the shot: 5 frames at 30/s, sim frames 0..14 at 90/s; a free fall is exact at any step
-    assert "auto: pilot 8/16 steps/frame over 0.156 s" in err and "steps/frame 2/2/2" in err
+    # the shot: 5 frames at 30/s, sim frames 0..14 at 90/s; a free fall is exact at any step,
+    # and the pilot's run at 8 steps per frame already covers the shot: it is kept
+    assert "auto: pilot 8/16 steps/frame over 0.156 s" in err and "steps/frame 8/8/8" in err
+    assert "the shot goes on from its run" in err and "336 steps in all" in err
     assert "frames slept" in err and "self-collision passes" in err
     assert out.exists()
