@@ -52,7 +52,7 @@ from .integrators import state_class
 from .model import DIRECTION_TYPE, build_model
 from .outputs import atomic_file
 from .scene import INTEGRATORS, MODELS, FemMaterial, Scene, load_scene
-from .system import System, build_system, stability_limit
+from .system import System, build_system, damping_at, drag_gamma, stability_limit
 
 REFERENCE = "rk4"
 REFERENCE_FACTOR = 16  # the reference runs at dt_scene / 16 ...
@@ -154,7 +154,7 @@ class Run:
         if dt is not None:
             # keep the scene's drag rate: c' = 1 - (1 - c)^(dt / dt0)
             dt = float(dt)
-            damping = 1.0 - (1.0 - system.damping) ** (dt / system.dt)
+            damping = damping_at(system.damping, system.dt, dt)
             system = system._replace(dt=dt, damping=damping, force_dt2=dt * dt)
         self.system: System = system
         self.integrator = integrator
@@ -311,7 +311,7 @@ def auto_point(scene, tolerance: float, t_end: float, reference: np.ndarray, mod
 
     data = copy.deepcopy(scene_data(scene))
     data.setdefault("simulation", {}).update(fidelity="auto", tolerance_px=tolerance)
-    sim = Simulation(data)
+    sim = Simulation(data, shot_seconds=t_end)
     frames = round(t_end * sim.scene.simulation.frames_per_sec)
     start = time.perf_counter()
     try:
@@ -386,7 +386,7 @@ def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
         probe = Run(data, "verlet")
         omega, dt_verlet = stability_limit(probe.model)
         dt_theory = 2.0 / omega
-        gamma = -math.log(1.0 - probe.system.damping) / probe.dt0 if probe.system.damping else 0
+        gamma = drag_gamma(probe.system.damping, probe.dt0)
         dt_euler = 2.0 * gamma / (gamma * gamma + omega * omega)
         for name in integrators:
             lo = dt_theory / 16 if name != "euler" else min(dt_theory, dt_euler) / 4

@@ -48,6 +48,7 @@ import numpy as np
 from .forces import total_force
 from .reach import arm, budget_for
 from .scene import Scene
+from .system import damping_at, drag_gamma
 
 SAFETY = 0.5  # accepted estimate per frame: SAFETY * tolerance (calibrated: docs/fidelity.md)
 SLEEP_FRACTION = 0.5  # quiet frame: no point moves this share of the tolerance ...
@@ -241,8 +242,7 @@ class AutoStepper:
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
-        self.gamma = gamma = (-math.log(1.0 - self.base.damping) / self.base.dt
-                              if self.base.damping else 0.0)
+        self.gamma = gamma = drag_gamma(self.base.damping, self.base.dt)
         #: how long a velocity error is weighed: the drag's time constant, within one and
         #: PERSIST_FRAMES frames (an oscillation bounds what a velocity error does)
         self.persist = self.frame_dt * min(PERSIST_FRAMES, max(1.0, 1.0 / (gamma * self.frame_dt)
@@ -263,7 +263,7 @@ class AutoStepper:
     # --- the system at n steps per frame ---------------------------------------------------
     def system_for(self, n: int):
         dt = self.frame_dt / n
-        damping = 1.0 - (1.0 - self.base.damping) ** (dt / self.base.dt)
+        damping = damping_at(self.base.damping, self.base.dt, dt)
         force_dt2 = dt * damping / self.gamma if self.gamma > 0 else dt * dt
         return self.sim.system._replace(dt=dt, damping=damping, force_dt2=force_dt2,
                                         steps_per_frame=n)

@@ -207,6 +207,18 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     return omega_max, keep / omega_max
 
 
+def drag_gamma(damping: float, dt: float) -> float:
+    """The drag rate gamma (1/s) of losing the fraction `damping` of the velocity per step of
+    dt: -ln(1 - damping) / dt, 0 without damping (drag_rate in kernels)."""
+    return -math.log(1.0 - damping) / dt if damping else 0.0
+
+
+def damping_at(damping: float, dt0: float, dt: float) -> float:
+    """The fraction per step of dt that keeps the drag rate of `damping` per step of dt0:
+    1 - (1 - damping)^(dt / dt0)."""
+    return 1.0 - (1.0 - damping) ** (dt / dt0)
+
+
 # --- passes and guard shared by every integrator --------------------------------------------
 
 
