@@ -517,14 +517,20 @@ class AutoStepper:
         return int(min(self.n_max, max(self.n_min, steps)))
 
     def _pilot_reuse(self, runs: dict, want: int, frames: int) -> tuple | None:
-        """(n, frames, end state) of the pilot run the shot goes on from: the fewest steps at
-        least `want` whose remaining frames cost no more than the whole shot at `want` (an
-        unknown shot length counts as endless), or None to start again."""
-        shot = (round(self.shot_seconds / self.frame_dt) if self.shot_seconds else math.inf)
-        for n in sorted(runs):
-            if n >= want and (n == want or n * (shot - frames) <= want * shot):
-                return (n, *runs[n])
-        return None
+        """(n, frames, end state) of the pilot run the shot goes on from: of the runs with at
+        least `want` steps whose remaining frames cost no more than the whole shot at `want`
+        (an unknown shot length counts as endless), the cheapest, and of equals the finest
+        (a pilot that covered the whole shot gives its finest run for free); or None to
+        start again."""
+        if not self.shot_seconds:
+            return (want, *runs[want]) if want in runs else None
+        shot = round(self.shot_seconds / self.frame_dt)
+        left = max(0, shot - frames)
+        fits = [n for n in runs if n >= want and n * left <= want * shot]
+        if not fits:
+            return None
+        n = min(fits, key=lambda m: (m * left, -m))
+        return (n, *runs[n])
 
     def _pilot_runs(self, levels: tuple, frames: int, first: int, start: dict,
                     against: list | None) -> tuple[float, list, dict] | None:

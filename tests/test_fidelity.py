@@ -158,6 +158,17 @@ def test_a_shot_going_on_from_a_pilot_run_is_the_shot_started_again(tolerance, r
     np.testing.assert_array_equal(kept.velocities, again.velocities)
 
 
+def test_without_a_shot_length_only_a_run_at_the_steps_chosen_goes_on():
+    # an endless shot: a finer run than needed would cost more than starting again (with a
+    # 1.5 s shot both go on from a pilot run: the test above)
+    for tolerance in (0.1, 0.5):
+        sim = pipeline.Simulation(auto(corner_hung(12), tolerance))
+        run_frames(sim, 1)
+        pilot = sim.stepper.pilot
+        assert sim.stepper.n == math.ceil(pilot["constant_px"] / (2 * tolerance))
+        assert sim.stepper.n not in pilot["steps"] and not pilot["reused"]
+
+
 def test_the_pilot_is_skipped_under_contact_and_keeps_the_file_steps():
     data = auto(scene_dict(cloth_dict(10, 10, thickness=0.005, ks=500.0),
                            spheres=[((0.5, -0.3, 0.5), 0.2, 0.3)]))
@@ -300,8 +311,8 @@ def test_render_summary_says_what_auto_used(tmp_path, capsys):
                      "--frames", "5"]) == 0
     err = capsys.readouterr().err
     # the shot: 5 frames at 30/s, sim frames 0..14 at 90/s; a free fall is exact at any step,
-    # and the pilot's run at 8 steps per frame already covers the shot: it is kept
-    assert "auto: pilot 8/16 steps/frame over 0.156 s" in err and "steps/frame 8/8/8" in err
+    # and the pilot's runs already cover the shot: the finer is kept
+    assert "auto: pilot 8/16 steps/frame over 0.156 s" in err and "steps/frame 16/16/16" in err
     assert "the shot goes on from its run" in err and "336 steps in all" in err
     assert "frames slept" in err and "self-collision passes" in err
     assert out.exists()
