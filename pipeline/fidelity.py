@@ -239,6 +239,7 @@ class AutoStepper:
         #: (steps per frame, per-frame states, end state) of the pilot run the shot goes on
         #: from, while its frames are replayed
         self.replay: tuple | None = None
+        self.replay_first = 0  # the frame the replayed run starts at
         self.n = max(self.n_min, s.steps_per_frame)
         self.check_every = 1  # frames between error estimates: 1 .. MAX_CHECK_EVERY
         self.safety = SAFETY
@@ -484,8 +485,9 @@ class AutoStepper:
         d1, kept, runs = pair
         constant = 2.0 * n1 * d1  # the error of n steps per frame: constant / n pixels
         want = self._pilot_steps(constant)
+        file_steps = self._clamp(self.scene.simulation.steps_per_frame)
         steps, converges = (n1, 2 * n1), None
-        if want >= 3 * n1 or want > max(2 * n1, self.scene.simulation.steps_per_frame):
+        if want >= 3 * n1 or want > max(2 * n1, file_steps):
             n3 = min(self.n_max, max(want, 3 * n1))
             third = self._pilot_runs((n3,), frames, first, start, kept)
             d2 = third[0] if third is not None else math.inf
@@ -497,7 +499,7 @@ class AutoStepper:
                 if want <= PILOT_SLACK * n3:  # within the estimate's own spread: keep n3
                     want = min(want, n3)
             else:
-                want, runs = self._pilot_steps(0.0, self.scene.simulation.steps_per_frame), {}
+                want, runs = file_steps, {}
         self._restore(start)
         self.frame = first
         self.n = want
@@ -509,12 +511,13 @@ class AutoStepper:
                       "predicted_px": None if converges is False else constant / self.n,
                       "reused": self.replay is not None}
 
-    def _pilot_steps(self, constant: float, steps: int | None = None) -> int:
-        """The fewest steps per frame that bring constant / n to PILOT_TARGET tolerances (or
-        `steps`), within [n_min, n_max]."""
-        if steps is None:
-            steps = math.ceil(constant / (PILOT_TARGET * self.tolerance))
-        return int(min(self.n_max, max(self.n_min, steps)))
+    def _pilot_steps(self, constant: float) -> int:
+        """The fewest steps per frame that bring constant / n to PILOT_TARGET tolerances."""
+        return self._clamp(math.ceil(constant / (PILOT_TARGET * self.tolerance)))
+
+    def _clamp(self, n: int) -> int:
+        """n steps per frame within [n_min, n_max]."""
+        return int(min(self.n_max, max(self.n_min, n)))
 
     def _pilot_reuse(self, runs: dict, want: int, frames: int) -> tuple | None:
         """(n, frames, end state) of the pilot run the shot goes on from: of the runs with at
@@ -575,6 +578,8 @@ class AutoStepper:
         self.steps_used.append(n)
         self.frame += 1
         self._after_frame(start)
+        if self.asleep:  # asleep here, as a shot started again at n would be: stay here
+            self.replay = None
 
     def _next_steps(self, n: int, ratio: float) -> int:
         """The next frame's steps from this one's error ratio (error / target): up if above
@@ -586,7 +591,7 @@ class AutoStepper:
                                                   ** (1 / self.order))))
         else:
             want = n
-        return int(min(self.n_max, max(self.n_min, want)))
+        return self._clamp(want)
 
     def _after_frame(self, start: np.ndarray) -> None:
         """The motion budget of the next arming, and the sleep test: positions are kept only

@@ -158,6 +158,21 @@ def test_a_shot_going_on_from_a_pilot_run_is_the_shot_started_again(tolerance, r
     np.testing.assert_array_equal(kept.velocities, again.velocities)
 
 
+def test_a_cloth_falling_asleep_while_a_pilot_run_is_replayed_stays_asleep():
+    nw = 6
+    still = scene_dict(cloth_dict(nw, nw, pinned=[(i, j) for i in range(nw) for j in range(nw)]))
+    # a one-second shot: the pilot covers it and hands over its finer run (then 0.5 s more)
+    kept = pipeline.Simulation(auto(still), shot_seconds=1.0)
+    frames = run_frames(kept, 135)
+    assert kept.stepper.pilot["reused"] and kept.stepper.replay is None
+    assert kept.stepper.slept > 135 - 90  # asleep before the pilot's second was replayed
+    again = pipeline.Simulation(auto(still), shot_seconds=1.0)
+    again.stepper.pilot, again.stepper.n = kept.stepper.pilot, kept.stepper.n
+    for a, b in zip(frames, run_frames(again, 135)):
+        np.testing.assert_array_equal(a, b)
+    assert again.stepper.slept == kept.stepper.slept
+
+
 def test_without_a_shot_length_only_a_run_at_the_steps_chosen_goes_on():
     # an endless shot: a finer run than needed would cost more than starting again (with a
     # 1.5 s shot both go on from a pilot run: the test above)
