@@ -12,7 +12,9 @@ that no point ends a step inside one. Then:
    measured on screen: the largest distance between a point's two projections through the
    scene's camera, in pixels of the rendered image. A frame is accepted when that is at
    most SAFETY times `tolerance_px`, else redone with more steps; the next frame's n follows
-   the usual controller n' = n (err / target)^(1/p) (bounded to halve or double). n never
+   the usual controller n' = n (err / target)^(1/p) (by at most GROWTH; lowered only below
+   half the target). Estimates thin out while the error stays well below the target (at the
+   fewest steps: while its trend stays below the target). n never
    goes below the stability floor (so that B is stable too), and a step the divergence
    guard rejects is redone with twice the steps.
    The classic model's, once for the shot, by a pilot: its stretch limit acts once per step,
@@ -259,6 +261,7 @@ class AutoStepper:
         self.rejected = 0
         self.steps_total = 0  # every step taken, estimates and redone frames included
         self.last_error_px = 0.0
+        self.checked_at = 0  # the frame of the last error estimate
         self._started = False
 
     # --- the system at n steps per frame ---------------------------------------------------
@@ -445,13 +448,22 @@ class AutoStepper:
                                                              ** (1 / self.order)))))
         self.steps_used.append(n)
         if checked:
+            rise = (error - self.last_error_px) / max(1, self.frame - self.checked_at)
             self.since_check = 0
-            self.last_error_px = error
+            self.last_error_px, self.checked_at = error, self.frame
             self.n = self._next_steps(n, error / target)
             # check less often while far below the target (or below half of it at the fewest
-            # steps, where a check can only ask for more), at once again when near it
-            quiet = error < (0.5 if n <= self.n_min else 0.25) * target
-            self.check_every = min(MAX_CHECK_EVERY, 2 * self.check_every) if quiet else 1
+            # steps, where a check can only ask for more), at once again when near it; at the
+            # fewest steps and below the target, as long as the error's trend (its rise per
+            # frame since the last check) stays below it
+            grow = min(MAX_CHECK_EVERY, 2 * self.check_every)
+            if error < (0.5 if n <= self.n_min else 0.25) * target:
+                self.check_every = grow
+            elif n <= self.n_min and error <= target:
+                room = (target - error) / rise if rise > 0.0 else grow
+                self.check_every = max(1, min(grow, math.floor(room)))
+            else:
+                self.check_every = 1
         else:
             self.since_check += 1
             self.n = n
@@ -583,10 +595,11 @@ class AutoStepper:
 
     def _next_steps(self, n: int, ratio: float) -> int:
         """The next frame's steps from this one's error ratio (error / target): up if above
-        1, down only well below it (hysteresis), by at most GROWTH either way."""
+        1, down where below half of it to where it would be half (hysteresis), by at most
+        GROWTH either way."""
         if ratio > 1.0:
             want = math.ceil(n * min(GROWTH, ratio ** (1 / self.order)))
-        elif ratio < 0.25:
+        elif ratio < 0.5:
             want = math.floor(n / min(GROWTH, max(1.0, (0.5 / max(ratio, 1e-9))
                                                   ** (1 / self.order))))
         else:

@@ -107,6 +107,29 @@ def test_tighter_tolerance_takes_more_steps_and_errs_less():
     assert tight <= 2 * 0.01 and loose <= 2 * 0.1
 
 
+def test_at_the_fewest_steps_checks_wait_while_the_error_trend_stays_below_the_target(
+        monkeypatch):
+    # the estimates (fed in) rise on a line from 0.6 to the target at frame 20; at the fewest
+    # steps a check can only ask for more, so the checks thin out by doubling, but no further
+    # than the line's crossing: 0, 1 (rise 0.02 / frame: 19 frames of room, doubling: 2),
+    # 3 (4), 7 (8), 15 (room (1 - 0.9) / 0.02 = 5), 20
+    sim = pipeline.Simulation(auto(hanging_sheet(), 1.0))
+    st = sim.stepper
+    st.n = st.n_min
+    target = st.safety * st.tolerance
+    checks = []
+
+    def estimate(n):
+        checks.append(st.frame)
+        return True, (0.6 + 0.02 * st.frame) * target
+
+    monkeypatch.setattr(st, "_estimate", estimate)
+    monkeypatch.setattr(st, "_run", lambda n: True)
+    sim.advance(21)
+    assert checks == [0, 1, 3, 7, 15, 20]
+    assert st.steps_used == [st.n_min] * 21
+
+
 # --- the classic model's pilot --------------------------------------------------------------
 
 def corner_hung(nw: int = 24) -> dict:
