@@ -85,6 +85,7 @@ PILOT_CONVERGENCE = 4.0 / 3.0
 #: differ by 6-8 % on pinned2 and pinned4)
 PILOT_SLACK = 1.15
 REPLAYED = ("x", "last", "v")  # a pilot run's state kept per frame, to replay in the shot
+REPLAY_BYTES = 256 << 20  # at most this much kept per pilot pass; a larger cloth starts again
 #: cost of one implicit-Euler step in Verlet steps (benchmarks/sim.py --features, 2026-11-23)
 IMPLICIT_COST = {"classic": 20.0, "fem": 41.9}
 
@@ -495,11 +496,13 @@ class AutoStepper:
                 self._diverged(2 * n1)
             n1 *= 2
         d1, kept, runs = pair
+        del pair  # its runs' frames are held by `runs` alone
         constant = 2.0 * n1 * d1  # the error of n steps per frame: constant / n pixels
         want = self._pilot_steps(constant)
         file_steps = self._clamp(self.scene.simulation.steps_per_frame)
         steps, converges = (n1, 2 * n1), None
         if want >= 3 * n1 or want > max(2 * n1, file_steps):
+            runs = {}  # the shot goes on from the third run or starts again at the file's
             n3 = min(self.n_max, max(want, 3 * n1))
             third = self._pilot_runs((n3,), frames, first, start, kept)
             d2 = third[0] if third is not None else math.inf
@@ -553,10 +556,13 @@ class AutoStepper:
         side: (the largest screen distance over the second half of the frames between the
         first two levels, or between the first and `against` (positions kept from an earlier
         run), the second level's positions there as float32, and per level its frames'
-        positions and velocity state and its end state), or None when the guard rejected a
-        step."""
+        positions and velocity state and its end state: none past REPLAY_BYTES), or None
+        when the guard rejected a step."""
         states = [start] * len(levels)
         records: list[list] = [[] for _ in levels]
+        state = self.sim._state
+        keep = frames * len(levels) * sum(getattr(state, k).nbytes for k in REPLAYED) \
+            <= REPLAY_BYTES
         kept, worst, j = [], 0.0, 0
         for f in range(frames):
             x = []
@@ -566,7 +572,8 @@ class AutoStepper:
                 if not self._run(steps):
                     return None
                 states[k] = self._save()
-                records[k].append({key: states[k][key] for key in REPLAYED})
+                if keep:
+                    records[k].append({key: states[k][key] for key in REPLAYED})
                 x.append(self.sim._state.x.T.copy())
             if 2 * f < frames:  # the second half: the swing after the release
                 continue
@@ -575,7 +582,8 @@ class AutoStepper:
             worst = max(worst, screen_distance(self.camera, x[0], other))
             if against is None:
                 kept.append(x[1].astype(np.float32))
-        return worst, kept, {n: (records[k], states[k]) for k, n in enumerate(levels)}
+        return worst, kept, ({n: (records[k], states[k]) for k, n in enumerate(levels)}
+                             if keep else {})
 
     def _replay_frame(self) -> None:
         """The next frame of the pilot run the shot goes on from, as that run left it."""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import pipeline
-from pipeline import cli
+from pipeline import cli, fidelity
 from pipeline.colliders import euler_matrix
 from pipeline.fidelity import screen_distance
 from pipeline.simulation import StabilityWarning
@@ -179,6 +179,22 @@ def test_a_shot_going_on_from_a_pilot_run_is_the_shot_started_again(tolerance, r
     for a, b in zip(frames, run_frames(again, 135)):
         np.testing.assert_array_equal(a, b)
     np.testing.assert_array_equal(kept.velocities, again.velocities)
+
+
+def test_a_cloth_too_large_to_keep_its_pilot_runs_starts_again(monkeypatch):
+    kept = pipeline.Simulation(auto(corner_hung(12), 0.1), shot_seconds=1.5)
+    run_frames(kept, 1)
+    assert kept.stepper.pilot["reused"]
+    monkeypatch.setattr(fidelity, "REPLAY_BYTES", 1000)  # under one frame of this cloth
+    again = pipeline.Simulation(auto(corner_hung(12), 0.1), shot_seconds=1.5)
+    frames = run_frames(again, 135)
+    pilot = again.stepper.pilot
+    assert not pilot["reused"] and pilot["steps"] == kept.stepper.pilot["steps"]
+    assert again.stepper.n == math.ceil(pilot["constant_px"] / (2 * 0.1))
+    forced = pipeline.Simulation(auto(corner_hung(12), 0.1), shot_seconds=1.5)
+    forced.stepper.pilot, forced.stepper.n = pilot, again.stepper.n  # from the start
+    for a, b in zip(frames, run_frames(forced, 135)):
+        np.testing.assert_array_equal(a, b)
 
 
 def test_a_cloth_falling_asleep_while_a_pilot_run_is_replayed_stays_asleep():
