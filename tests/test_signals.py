@@ -42,6 +42,24 @@ def child_env(**extra) -> dict:
     return env
 
 
+def as_from_a_terminal(ignored: tuple = ()):
+    """A preexec_fn: SIGINT, SIGTERM and SIGHUP at their defaults, as a terminal starts a
+    command, except `ignored` (a shell without job control starts background jobs with
+    SIGINT ignored, and render keeps an inherited SIG_IGN, as nohup wants)."""
+    def reset() -> None:
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+            signal.signal(sig, signal.SIG_IGN if sig in ignored else signal.SIG_DFL)
+
+    return reset
+
+
+def start_render(args: list[str], ignored: tuple = (), **env) -> subprocess.Popen:
+    """`render args`, started as from a terminal (with `ignored` signals ignored)."""
+    return subprocess.Popen(render_cmd() + args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=child_env(**env),
+                            preexec_fn=as_from_a_terminal(ignored))
+
+
 def children(pid: int) -> dict[int, str]:
     """{pid: command name} of the live processes whose parent is `pid` (from /proc)."""
     out = {}
@@ -120,25 +138,21 @@ def scene(tmp_path) -> Path:
 def test_sigterm_while_compiling(scene, tmp_path):
     cache = tmp_path.parent / (tmp_path.name + "_numba")  # outside the output folder
     cache.mkdir()
-    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
-                                            "--size", "32x32"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=child_env(NUMBA_CACHE_DIR=str(cache)))
+    proc = start_render([str(scene), "--out", str(tmp_path / "x.gif"), "--size", "32x32"],
+                        NUMBA_CACHE_DIR=str(cache))
     wait_for(proc, lambda: any(p.is_file() for p in cache.rglob("*")), "compiling")
     # a first run compiles in two processes (pipeline/warmup.py): the helper must go too
     helper = wait_for(proc, lambda: children(proc.pid), "the compile helper started")
     stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, helper)
 
 
-def simulate_30_s(scene: Path, tmp_path: Path, *sets: str) -> subprocess.Popen:
+def simulate_30_s(scene: Path, tmp_path: Path, *sets: str, ignored: tuple = ()
+                  ) -> subprocess.Popen:
     """A long render of `scene` to a GIF, an NPZ and OBJs (slow: 600 steps per frame)."""
     sets = [a for s in ("simulation.steps_per_frame=600",) + sets for a in ("--set", s)]
-    return subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.gif"),
-                                            "--size", "16x16", "--duration", "30",
-                                            "--export-npz", str(tmp_path / "p.npz"),
-                                            "--export-obj", str(tmp_path / "objs")] + sets,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=child_env())
+    return start_render([str(scene), "--out", str(tmp_path / "x.gif"), "--size", "16x16",
+                         "--duration", "30", "--export-npz", str(tmp_path / "p.npz"),
+                         "--export-obj", str(tmp_path / "objs")] + sets, ignored)
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGHUP])
@@ -148,6 +162,16 @@ def test_signal_while_simulating(warm, scene, tmp_path, sig):
     proc = simulate_30_s(scene, tmp_path, "camera=course")
     wait_for(proc, lambda: temp_files(tmp_path, ".x.gif.*.frames"), "simulating")
     stop(proc, sig, tmp_path, {"s.json"})
+
+
+def test_a_signal_ignored_by_whoever_started_render_stays_ignored(warm, scene, tmp_path):
+    # nohup render ...: a hangup does not stop it; SIGTERM still does, cleanly
+    proc = simulate_30_s(scene, tmp_path, "camera=course", ignored=(signal.SIGHUP,))
+    wait_for(proc, lambda: temp_files(tmp_path, ".x.gif.*.frames"), "simulating")
+    os.kill(proc.pid, signal.SIGHUP)
+    time.sleep(1.0)
+    assert proc.poll() is None
+    stop(proc, signal.SIGTERM, tmp_path, {"s.json"})
 
 
 def test_signal_while_framing_the_shot(warm, scene, tmp_path):
@@ -167,11 +191,8 @@ def test_signal_while_framing_the_shot(warm, scene, tmp_path):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_while_rendering(warm, scene, tmp_path, sig):
-    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", f"{tmp_path}/frames/",
-                                            "--size", "1024x1024", "--aa", "4",
-                                            "--duration", "30", "--set", "camera=course"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=child_env())
+    proc = start_render([str(scene), "--out", f"{tmp_path}/frames/", "--size", "1024x1024",
+                         "--aa", "4", "--duration", "30", "--set", "camera=course"])
     wait_for(proc, lambda: temp_files(tmp_path, ".frames.*.part/frame_00000.png"),
              "rendering")
     stop(proc, sig, tmp_path, {"s.json"})
@@ -179,11 +200,8 @@ def test_signal_while_rendering(warm, scene, tmp_path, sig):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM, signal.SIGHUP])
 def test_signal_while_encoding_mp4_kills_ffmpeg(warm, scene, tmp_path, sig):
-    proc = subprocess.Popen(render_cmd() + [str(scene), "--out", str(tmp_path / "x.mp4"),
-                                            "--size", "256x256", "--duration", "60",
-                                            "--set", "camera=course"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=child_env())
+    proc = start_render([str(scene), "--out", str(tmp_path / "x.mp4"), "--size", "256x256",
+                         "--duration", "60", "--set", "camera=course"])
     def ffmpeg_running():
         kids = children(proc.pid)
         return kids if any("ffmpeg" in c for c in kids.values()) else None
@@ -194,13 +212,9 @@ def test_signal_while_encoding_mp4_kills_ffmpeg(warm, scene, tmp_path, sig):
 
 
 def test_sigterm_stops_report_workers(warm, scene, tmp_path):
-    proc = subprocess.Popen(render_cmd() + ["report", str(scene), "--out",
-                                            str(tmp_path / "r.html"), "--shader", "phong",
-                                            "--sweep", "cloth.ks=1000,2000", "--jobs", "2",
-                                            "--duration", "60", "--size", "32x32",
-                                            "--set", "simulation.steps_per_frame=300"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=child_env())
+    proc = start_render(["report", str(scene), "--out", str(tmp_path / "r.html"), "--shader",
+                         "phong", "--sweep", "cloth.ks=1000,2000", "--jobs", "2", "--duration",
+                         "60", "--size", "32x32", "--set", "simulation.steps_per_frame=300"])
     def workers_running():
         kids = children(proc.pid)
         return kids if len(kids) >= 2 and temp_files(tmp_path, ".r.*.part") else None
@@ -254,7 +268,8 @@ with handled():
 def test_signal_inside_an_llvm_callback_is_deferred_not_lost(tmp_path, sig):
     proc = subprocess.run([sys.executable, "-c", SIGNAL_IN_LLVM_CALLBACK.replace(
         "SIGNUM", signal.Signals(sig).name)], capture_output=True, text=True,
-        env=child_env(NUMBA_CACHE_DIR=str(tmp_path)), timeout=WAIT)
+        env=child_env(NUMBA_CACHE_DIR=str(tmp_path)), timeout=WAIT,
+        preexec_fn=as_from_a_terminal())
     assert proc.returncode == 128 + sig, proc.stderr
     # the signal waited for LLVM to return, then stopped the run (in numba's Python code
     # or in the sleep, whichever it found)
