@@ -474,7 +474,8 @@ def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
     runs: list[VariantRun | None] = [None] * n
     tasks = [(v.index, plan.scene_path, plan.overrides + list(v.overrides), frames, threads)
              for v in plan.variants]
-    pool = ctx.Pool(workers)
+    with signals.deferred():  # every worker started and sent its set-up, or none
+        pool = ctx.Pool(workers)
     try:
         for index, result in pool.imap_unordered(_simulate_indexed, tasks):
             runs[index] = result

@@ -12,7 +12,10 @@ a signal stopped.
 A signal that lands while LLVM is calling back into Python (numba compiling or loading a
 kernel: llvmlite's object cache is a ctypes callback) is held back: ctypes would print and
 drop the exception, losing the signal or leaving LLVM with a half-set buffer (a crash). It
-is sent again a moment later, until it finds the main thread back in plain Python.
+is sent again a moment later, until it finds the main thread back in plain Python. So is
+one that lands inside `deferred()`, a step that must not be cut in half (starting worker
+processes: a worker spawned but not yet sent its task would die reading an empty pipe, with
+a traceback).
 """
 from __future__ import annotations
 
@@ -22,6 +25,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 HANDLED = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+_deferring = 0  # how many deferred() blocks the main thread is in
 RESEND_SECONDS = 0.01  # how soon a held-back signal is sent again
 
 
@@ -57,7 +61,7 @@ def handled() -> Iterator[None]:
     def handler(signum, frame):
         if fired:  # already stopping: let the cleanup finish
             return
-        if _inside_llvmlite(frame):
+        if _deferring or _inside_llvmlite(frame):
             threading.Timer(RESEND_SECONDS, resend, (signum,)).start()
             return
         fired.append(signum)
@@ -73,6 +77,18 @@ def handled() -> Iterator[None]:
             for sig, old in previous.items():
                 signal.signal(sig, old)
             previous.clear()
+
+
+@contextmanager
+def deferred() -> Iterator[None]:
+    """Within the block, a signal that handled() turns into Terminated waits for the block
+    to end (it is sent again until then)."""
+    global _deferring
+    _deferring += 1
+    try:
+        yield
+    finally:
+        _deferring -= 1
 
 
 def _inside_llvmlite(frame) -> bool:

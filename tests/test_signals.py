@@ -264,6 +264,49 @@ with handled():
 """
 
 
+# `render report` starting its worker pool, with a SIGTERM sent to itself just after the
+# first worker process is spawned and before the pool writes it its set-up: the worker would
+# read an empty pipe and print a traceback, unless the signal waits for the pool to start.
+SIGNAL_WHILE_STARTING_WORKERS = """
+import os, signal, sys
+import multiprocessing.util as util
+from pipeline.cli import main
+
+spawn = util.spawnv_passfds
+sent = []
+
+def spawn_then_signal(path, args, passfds):
+    pid = spawn(path, args, passfds)
+    if not sent and "spawn_main" in " ".join(map(str, args)):
+        sent.append(pid)
+        print(pid, flush=True)
+        os.kill(os.getpid(), signal.SIGTERM)
+        for _ in range(100000):  # Python code: the handler runs here, mid-start
+            pass
+    return pid
+
+util.spawnv_passfds = spawn_then_signal
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_sigterm_while_report_workers_start_waits_for_them(warm, scene, tmp_path):
+    proc = subprocess.run([sys.executable, "-c", SIGNAL_WHILE_STARTING_WORKERS, "report",
+                           str(scene), "--out", str(tmp_path / "r.html"), "--shader", "phong",
+                           "--sweep", "cloth.ks=1000,2000", "--jobs", "2", "--size", "32x32"],
+                          capture_output=True, text=True, env=child_env(), timeout=WAIT,
+                          preexec_fn=as_from_a_terminal())
+    assert proc.returncode == 128 + signal.SIGTERM, proc.stderr
+    assert "render: interrupted (SIGTERM); no output written" in proc.stderr
+    assert "Traceback" not in proc.stderr and "EOFError" not in proc.stderr, proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.json"]
+    worker = int(proc.stdout.split()[0])
+    deadline = time.monotonic() + 30
+    while process_alive(worker) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not process_alive(worker)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_signal_inside_an_llvm_callback_is_deferred_not_lost(tmp_path, sig):
     proc = subprocess.run([sys.executable, "-c", SIGNAL_IN_LLVM_CALLBACK.replace(
