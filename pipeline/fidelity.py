@@ -136,10 +136,11 @@ class Plan:
                            "depends on the step chaotically, so more steps buy no accuracy "
                            "(docs/fidelity.md)")
             elif self.model == "classic":
-                out.append(f"steps per frame: chosen for the whole shot by a pilot run of the "
-                           f"first {PILOT_SECONDS:g} s at two step counts (at least "
-                           f"{self.steps_per_frame_min}; exact: {self.steps_per_frame_exact}): "
-                           "the classic model's stretch limit acts once per step, so the step "
+                out.append(f"steps per frame (at least {self.steps_per_frame_min}; exact: "
+                           f"{self.steps_per_frame_exact}): chosen for the whole shot by a "
+                           f"pilot run of the first {PILOT_SECONDS:g} s at two step counts, "
+                           "and a third at the steps they ask for where that is more: the "
+                           "classic model's stretch limit acts once per step, so the step "
                            "count is fixed for the shot (docs/fidelity.md)")
             else:
                 out.append(f"steps per frame {self.steps_per_frame_min}.."
