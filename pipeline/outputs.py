@@ -29,6 +29,8 @@ import shutil
 import subprocess
 import tempfile
 import threading
+from collections import deque
+from concurrent.futures import ThreadPoolExecutor
 from fractions import Fraction
 from pathlib import Path
 from typing import Sequence
@@ -554,6 +556,7 @@ class GifWriter(_Atomic):
     SAMPLE_PER_FRAME = 8192  # pixels per frame fed to the palette builder
     SAMPLE_CAP = 1 << 20  # at most this many sampled pixels in memory (3 MB)
     KMEANS = 3
+    QUANTIZE_AHEAD = 4  # frames quantised ahead of the one being written
 
     def __init__(self, target, fps: float = 25.0, palette: str = "global",
                  dither: str = "stable", loop: int = 0):
@@ -624,8 +627,11 @@ class GifWriter(_Atomic):
             self._emit(image, pal, local=True)
         self.count += 1
 
-    def _emit(self, image: np.ndarray, palette: np.ndarray, local: bool) -> None:
-        idx = _quantize(image, palette, self.dither != "none")
+    def _emit(self, image: np.ndarray, palette: np.ndarray, local: bool,
+              idx: np.ndarray | None = None) -> None:
+        """Write one frame; `idx`: its quantised indices, if already computed."""
+        if idx is None:
+            idx = _quantize(image, palette, self.dither != "none")
         if self.dither == "stable" and not local:
             if self._prev_idx is not None:
                 same = ~_changed(image, self._prev_src)
@@ -659,11 +665,20 @@ class GifWriter(_Atomic):
             h, w = self.shape
             self._fh.write(_gif_header(w, h, pal, self.loop))
             frame_bytes = h * w * 3
-            with open(self._spool_path, "rb") as spool:
-                for _ in range(self.count):
-                    buf = spool.read(frame_bytes)
-                    image = np.frombuffer(buf, np.uint8).reshape(h, w, 3).copy()
-                    self._emit(image, pal, local=False)
+            dither = self.dither != "none"
+            # Pillow quantises without the GIL: QUANTIZE_AHEAD frames are quantised in
+            # threads while the frames before them are written, in order
+            with open(self._spool_path, "rb") as spool, \
+                    ThreadPoolExecutor(min(2, os.cpu_count() or 1)) as pool:
+                pending: deque = deque()
+                for k in range(self.count + self.QUANTIZE_AHEAD):
+                    if k < self.count:
+                        buf = spool.read(frame_bytes)
+                        image = np.frombuffer(buf, np.uint8).reshape(h, w, 3).copy()
+                        pending.append((image, pool.submit(_quantize, image, pal, dither)))
+                    if k >= self.QUANTIZE_AHEAD:
+                        image, idx = pending.popleft()
+                        self._emit(image, pal, local=False, idx=idx.result())
             _remove(self._spool_path)
             self._spool_path = None
         self._fh.write(b";")
