@@ -226,18 +226,30 @@ def update_poses(table, t_start, t_end):
             pose_at(table.keys[c], n, t_end, table.pose[c, 1])
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _collide_points(x, last, pinned, table):
+@njit(cache=True, nogil=True, _nrt=False)
+def _collide_range(x, last, pinned, table, lo, hi):
+    """collide_point on the free points [lo, hi). Compiled without numba's reference counts
+    (`_nrt=False`, as numba's own sort and string kernels are: nothing here allocates): with
+    them, collide_point's inlined array arguments cost an atomic incref and decref each per
+    point, 3.7x the whole pass (92 against 25 us per call on the sphere scene)."""
     kinds, params, data = table.kinds, table.params, table.data
     key_count, pivot, pose, active = table.key_count, table.pivot, table.pose, table.active
+    for p in range(lo, hi):
+        if pinned[p]:
+            continue
+        x[0, p], x[1, p], x[2, p] = collide_point(
+            kinds, params, data, key_count, pivot, pose, active, x[0, p], x[1, p], x[2, p],
+            last[0, p], last[1, p], last[2, p])
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _collide_points(x, last, pinned, table):
+    # The parallel loop only calls _collide_range: numba copies a parallel loop's body
+    # several times while compiling it, so the colliders' inlined code stays out of it.
     n = x.shape[1]
     for chunk in prange(CHUNKS):
-        for p in range((chunk * n) // CHUNKS, ((chunk + 1) * n) // CHUNKS):
-            if pinned[p]:
-                continue
-            x[0, p], x[1, p], x[2, p] = collide_point(
-                kinds, params, data, key_count, pivot, pose, active, x[0, p], x[1, p], x[2, p],
-                last[0, p], last[1, p], last[2, p])
+        c = np.int64(chunk)
+        _collide_range(x, last, pinned, table, (c * n) // CHUNKS, ((c + 1) * n) // CHUNKS)
 
 
 @njit(cache=True, nogil=True)
