@@ -10,6 +10,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
+from numba.extending import register_jitable
 from shading.jit import njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
@@ -207,10 +208,14 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     return omega_max, keep / omega_max
 
 
+@register_jitable(inline="always")
 def drag_gamma(damping: float, dt: float) -> float:
     """The drag rate gamma (1/s) of losing the fraction `damping` of the velocity per step of
-    dt: -ln(1 - damping) / dt, 0 without damping (drag_rate in kernels)."""
-    return -math.log(1.0 - damping) / dt if damping else 0.0
+    dt: -ln(1 - damping) / dt, 0 without damping. Plain Python when called from Python,
+    inlined when a kernel calls it (drag_rate)."""
+    if damping <= 0.0:
+        return 0.0
+    return -math.log(1.0 - damping) / dt
 
 
 def damping_at(damping: float, dt0: float, dt: float) -> float:
@@ -227,9 +232,7 @@ def drag_rate(system):
     """The scene's damping as a drag rate gamma (1/s): dv/dt = -gamma v loses exactly the
     fraction `system.damping` of the velocity over one step of `system.dt`, as the Verlet
     update does: gamma = -ln(1 - damping) / dt."""
-    if system.damping <= 0.0:
-        return 0.0
-    return -np.log(1.0 - system.damping) / system.dt
+    return drag_gamma(system.damping, system.dt)
 
 
 @njit(cache=True, nogil=True, inline="always")
