@@ -562,7 +562,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         timers.encode += time.perf_counter() - t0
         out_bar.update(1)
 
-    mode = _pipeline_mode(args.pipeline)
+    mode = _pipeline_mode(args.pipeline, framed=framing is not None)
     frames = (_simulate(sim, plan.sim_frames, timers, sim_bar) if framing is None else
               _ahead(sim, plan, scene, framing, timers, sim_bar))
     try:
@@ -668,14 +668,13 @@ def _ahead(sim, plan: Plan, scene, framing, timers: _Timers, sim_bar):
             yield k, pos
 
 
-DEFAULT_PIPELINE = "split"
-
-
-def _pipeline_mode(requested: str) -> str:
+def _pipeline_mode(requested: str, framed: bool = False) -> str:
     """serial, overlap (simulate and render at once, each kernel on all cores) or split
-    (each stage's numba kernels on one thread). Concurrent parallel kernels need a
-    thread-safe numba threading layer (omp, tbb): with workqueue, run serially."""
-    mode = DEFAULT_PIPELINE if requested == "auto" else requested
+    (each stage's numba kernels on one thread). `auto`: split, but overlap for a `framed`
+    shot, simulated whole before its first frame is drawn, so the stages never run at
+    once and each may use every core. Concurrent parallel kernels need a thread-safe
+    numba threading layer (omp, tbb): with workqueue, run serially."""
+    mode = requested if requested != "auto" else "overlap" if framed else "split"
     if mode != "serial":
         try:
             import numba

@@ -282,6 +282,20 @@ def test_serial_and_pipelined_identical(env, scene, tmp_path, capsys):
         assert a.read_bytes() == b.read_bytes()
 
 
+@pytest.mark.parametrize("layer, framed, expected", [
+    ("omp", False, "split"),  # simulate and render at once: one core each
+    ("omp", True, "overlap"),  # the whole shot is simulated first: every core for each
+    ("workqueue", True, "serial"),  # not thread-safe: never two parallel kernels at once
+])
+def test_auto_pipeline_mode(monkeypatch, layer, framed, expected):
+    import numba
+
+    monkeypatch.setattr(numba, "threading_layer", lambda: layer)
+    assert cli._pipeline_mode("auto", framed=framed) == expected
+    assert cli._pipeline_mode("split", framed=framed) == ("serial" if layer == "workqueue"
+                                                          else "split")
+
+
 def test_summary_line(env, scene, tmp_path, capsys):
     code, out, err = run(capsys, scene, "--out", tmp_path / "c.gif", "--size", "64x64",
                          "--duration", "0.2")

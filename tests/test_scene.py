@@ -187,6 +187,16 @@ def test_schema_enums_come_from_the_module_tuples(monkeypatch):
     assert load_scene(d, ["simulation.integrator=leapfrog"]).simulation.integrator == "leapfrog"
 
 
+def test_the_schema_is_a_valid_draft_2020_12_schema():
+    import jsonschema
+
+    jsonschema.Draft202012Validator.check_schema(scene_schema())
+    broken = scene_schema()
+    broken["$defs"]["simulation"]["properties"]["integrator"]["enum"] = "verlet"
+    with pytest.raises(jsonschema.SchemaError):
+        jsonschema.Draft202012Validator.check_schema(broken)
+
+
 def test_every_schema_property_is_described_and_documented():
     doc = (ROOT / "docs" / "scene-format.md").read_text()
     schema = scene_schema()
