@@ -34,13 +34,15 @@ from .progress import bar
 # CPU times in seconds (the README's first command, 2026-11-24, one after the other in one
 # process), which balance the two and give the estimate of the first-run message. The helper
 # then compiles the renderer's while this process compiles the stepping kernel, so the split
-# evens HERE + STEP against HELPER + RENDER (21.2 s each). Two compiles at once each run
-# about 1.25x slower (measured: collide_all 15.2 s, the renderer 13.4 s): CONTENTION.
-HERE = {"pipeline.colliders:collide_all": 11.3, "pipeline.system:motion_summary": 0.2,
-        "pipeline.system:energy_guard": 0.3, "pipeline.self_collision:self_collide": 5.2}
-HELPER = {"pipeline.forces:total_force": 5.8, "pipeline.system:_classic_stretch_limit": 2.9,
-          "pipeline.reach:reach_check": 0.8}
-RENDER_SECONDS = 11.7  # every renderer kernel for one shader
+# evens HERE + STEP (19.8 s) against HELPER + RENDER (18.3 s, and the helper starts about
+# 0.5 s late). Two compiles at once each run about 1.25x slower (measured before
+# collide_all's projections were inlined once: 15.2 s against 11.3 s alone, the renderer
+# 13.4 s against 11.7 s): CONTENTION.
+HERE = {"pipeline.colliders:collide_all": 7.2, "pipeline.system:motion_summary": 0.3,
+        "pipeline.system:energy_guard": 0.2, "pipeline.self_collision:self_collide": 5.0,
+        "pipeline.system:_classic_stretch_limit": 2.9}
+HELPER = {"pipeline.forces:total_force": 6.1, "pipeline.reach:reach_check": 0.9}
+RENDER_SECONDS = 11.3  # every renderer kernel for one shader
 STEP_SECONDS = 4.2  # the integrator's stepping kernel (position passes and guard inlined)
 CONTENTION = 1.25
 

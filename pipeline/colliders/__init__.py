@@ -203,16 +203,18 @@ def collide_point(kinds, params, data, key_count, pivot, pose, active, x, y, z, 
     for c in range(kinds.shape[0]):
         if active[c] == 0:
             continue
-        kind = kinds[c]
-        if key_count[c] == 0:
-            x, y, z = _project(kind, params, c, data, x, y, z, lx, ly, lz)
-            continue
-        px, py, pz = pivot[c, 0], pivot[c, 1], pivot[c, 2]
-        rx, ry, rz = _to_rest(pose, c, 1, px, py, pz, x, y, z)
-        rlx, rly, rlz = _to_rest(pose, c, 0, px, py, pz, lx, ly, lz)
-        qx, qy, qz = _project(kind, params, c, data, rx, ry, rz, rlx, rly, rlz)
-        if qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
-            x, y, z = _to_world(pose, c, 1, px, py, pz, qx, qy, qz)
+        moving = key_count[c] != 0
+        rx, ry, rz, rlx, rly, rlz = x, y, z, lx, ly, lz  # a static collider's rest frame
+        if moving:
+            rx, ry, rz = _to_rest(pose, c, 1, pivot[c, 0], pivot[c, 1], pivot[c, 2], x, y, z)
+            rlx, rly, rlz = _to_rest(pose, c, 0, pivot[c, 0], pivot[c, 1], pivot[c, 2],
+                                     lx, ly, lz)
+        # one call site: each kind's projection is inlined (compiled) once, not twice
+        qx, qy, qz = _project(kinds[c], params, c, data, rx, ry, rz, rlx, rly, rlz)
+        if not moving:
+            x, y, z = qx, qy, qz
+        elif qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
+            x, y, z = _to_world(pose, c, 1, pivot[c, 0], pivot[c, 1], pivot[c, 2], qx, qy, qz)
     return x, y, z
 
 
