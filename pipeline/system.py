@@ -52,7 +52,7 @@ class System(NamedTuple):
     fem: FemParams | None  # the finite-element model; None: the classic springs
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool
-    scratch: tuple  # SelfCollisionScratch.as_tuple()
+    scratch: tuple | None  # SelfCollisionScratch.as_tuple(); None: off (pruned from the kernels)
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
     mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
@@ -95,7 +95,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         fem=model.fem,
         needs_velocity=scene.wind is not None,
         self_collision=scene.self_collision,
-        scratch=SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple(),
+        scratch=SelfCollisionScratch(model.n).as_tuple() if scene.self_collision else None,
         spring_force=spring_force_buffer(model.n, model.nw),
         mask=candidate_mask(model.n),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
@@ -248,14 +248,22 @@ def position_passes(x, last, system, t_start):
     reach_check(x, s.reach, s.colliders.active, s.thickness)
     if s.self_collision and s.reach.self_on[0]:
         s.reach.counts[1] += 1
-        self_collide(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
-                     s.steps_per_frame, s.scratch)
+        _self_collide_if_on(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
+                            s.steps_per_frame, s.scratch)
     if not s.colliders_last:
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     _classic_stretch_limit(x, s.fem, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned,
                            s.mask)
     if s.colliders_last:
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
+
+
+@njit(cache=True, nogil=True)
+def _self_collide_if_on(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
+    # numba prunes the call when the scene turns self-collision off (scratch None): a
+    # scene without it never compiles self_collide (5 s on a first run)
+    if scratch is not None:
+        self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
 
 
 @njit(cache=True, nogil=True)

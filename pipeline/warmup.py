@@ -6,7 +6,7 @@ README's first command: 44 of its 46 s, 2026-11-24), and numba compiles in Pytho
 the GIL, so threads cannot share the work. `warm_up` finds which of a scene's kernels are
 not cached yet. If both the simulator's and the renderer's are missing, a helper process
 (`python -m pipeline.warmup`) compiles the renderer's and part of the simulator's while
-this process compiles the rest, then this process compiles the integrator's stepping kernel
+this process compiles the rest (`split`, by their measured compile times), then this process compiles the integrator's stepping kernel
 on top of both (loading the helper's work from the cache). The cache is safe for two
 writers (shading.jit). Otherwise everything missing is compiled here, as before.
 
@@ -30,20 +30,20 @@ import numpy as np
 
 from .progress import bar
 
-# Kernels compiled in this process / in the helper on a cold start, with their cold compile
-# CPU times in seconds (the README's first command, 2026-11-24, one after the other in one
-# process), which balance the two and give the estimate of the first-run message. The helper
-# then compiles the renderer's while this process compiles the stepping kernel, so the split
-# evens HERE + STEP (19.8 s) against HELPER + RENDER (18.3 s, and the helper starts about
-# 0.5 s late). Two compiles at once each run about 1.25x slower (measured before
-# collide_all's projections were inlined once: 15.2 s against 11.3 s alone, the renderer
-# 13.4 s against 11.7 s): CONTENTION.
-HERE = {"pipeline.colliders:collide_all": 7.2, "pipeline.system:motion_summary": 0.3,
-        "pipeline.system:energy_guard": 0.2, "pipeline.self_collision:self_collide": 5.0,
-        "pipeline.system:_classic_stretch_limit": 2.9}
-HELPER = {"pipeline.forces:total_force": 6.1, "pipeline.reach:reach_check": 0.9}
+# The simulation's kernels with their cold compile CPU times in seconds (the README's first
+# command, 2026-11-24, one after the other in one process). They split the kernels between
+# this process and the helper (`split`) and give the estimate of the first-run message.
+# Two compiles at once each run about 1.25x slower (measured before collide_all's
+# projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
+# 11.7 s): CONTENTION.
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.2, "pipeline.forces:total_force": 6.1,
+                   "pipeline.self_collision:self_collide": 5.0,
+                   "pipeline.system:_classic_stretch_limit": 2.9,
+                   "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.3,
+                   "pipeline.system:energy_guard": 0.2}
 RENDER_SECONDS = 11.3  # every renderer kernel for one shader
 STEP_SECONDS = 4.2  # the integrator's stepping kernel (position passes and guard inlined)
+HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
 
@@ -78,10 +78,10 @@ def _cache_index(disp) -> list[tuple]:
     return [key for key in cache._cache_file._load_index() if key[1] == magic]
 
 
-def sim_jobs(system) -> tuple[list[Job], list[Job]]:
-    """(jobs for this process, jobs for the helper): the kernels every integrator calls
-    once per step, with arguments of the types the integrators pass (self-collision too
-    when the scene turns it off: the switch is a value, the code is compiled)."""
+def sim_jobs(system) -> list[Job]:
+    """The kernels every integrator calls once per step, with arguments of the types the
+    integrators pass (self-collision only when the scene turns it on: otherwise numba
+    prunes it from the stepping kernel), longest to compile first."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
@@ -95,8 +95,31 @@ def sim_jobs(system) -> tuple[list[Job], list[Job]]:
             "pipeline.system:_classic_stretch_limit": (x, s.fem, s.offsets, s.exist_bits, s.limit,
                                                        s.limit_sq_lo, s.pinned, s.mask),
             "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
-    return ([Job(n, args[n]) for n in HERE if n in args],
-            [Job(n, args[n]) for n in HELPER if n in args])
+    if s.scratch is None:
+        del args["pipeline.self_collision:self_collide"]
+    return [Job(n, args[n]) for n in COMPILE_SECONDS if n in args]
+
+
+def split(jobs: list[Job], two_processes: bool, step: bool) -> tuple[list[Job], list[Job]]:
+    """(this process's jobs, the helper's; all here in one process): each job, longest
+    first, to the side with less to compile so far, this process ending with the stepping
+    kernel and the helper with the renderer's (the stepping kernel waits for both sides'
+    simulation kernels; the helper starts HELPER_START late and does its share of them
+    first)."""
+    here: list[Job] = []
+    helper: list[Job] = []
+    if not two_processes:
+        return list(jobs), helper
+    mine, theirs = (STEP_SECONDS if step else 0.0), HELPER_START + RENDER_SECONDS
+    for job in jobs:
+        seconds = COMPILE_SECONDS[job.name]
+        if mine <= theirs:
+            here.append(job)
+            mine += seconds
+        else:
+            helper.append(job)
+            theirs += seconds
+    return here, helper
 
 
 @dataclass
@@ -132,15 +155,16 @@ def _stepping_cached(sim) -> bool:
 
 
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool) -> float:
-    """The first-run message's estimate (on this 2-core machine, idle): both processes'
-    simulation shares, then the stepping kernel here while the helper compiles the
-    renderer's; all of it in one process when only one side needs compiling."""
-    mine = sum(HERE[j.name] for j in here)
-    theirs = sum(HELPER[j.name] for j in helper)
+    """The first-run message's estimate (on this 2-core machine, idle): with the renderer's
+    kernels and others to compile, both processes' simulation shares, then the stepping
+    kernel here while the helper compiles the renderer's; else all of it in this process."""
+    mine = sum(COMPILE_SECONDS[j.name] for j in here)
+    theirs = sum(COMPILE_SECONDS[j.name] for j in helper)
     stepping = STEP_SECONDS if step else 0.0
     rendering = RENDER_SECONDS if render else 0.0
     if render and (here or helper or step):
-        return CONTENTION * max(max(mine, theirs) + stepping, theirs + rendering)
+        helper_done = HELPER_START + theirs
+        return CONTENTION * max(max(mine, helper_done) + stepping, helper_done + rendering)
     return mine + theirs + stepping + rendering
 
 
@@ -152,25 +176,24 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     compiling (0.0 when everything was cached)."""
     start = time.perf_counter()
     try:
-        here, helper = sim_jobs(sim.system)
-        here = [j for j in here if not j.cached()]
-        helper = [j for j in helper if not j.cached()]
+        jobs = [j for j in sim_jobs(sim.system) if not j.cached()]
         step = not _stepping_cached(sim)
         render_cold = render is not None and not render.cached()
     except Exception:  # numba's cache layout changed: compile on first use, as before
         return 0.0
-    if not (here or helper or step or render_cold):
+    if not (jobs or step or render_cold):
         return 0.0
+    two_processes = render_cold and bool(jobs or step)
+    here, helper = split(jobs, two_processes, step)
     if say is not None:
         seconds = estimate_seconds(here, helper, render_cold, step)
         say(f"compiling kernels for this machine (first run only, about {seconds:.0f} s)")
-    total = len(here) + len(helper) + int(step) + int(render_cold)
-    kernels = bar(total, "compile", "kernel", progress, 0)
+    kernels = bar(len(jobs) + int(step) + int(render_cold), "compile", "kernel", progress, 0)
     try:
-        if render_cold and (here or helper or step):
+        if two_processes:
             _in_two_processes(sim, here, helper, render, kernels)
         else:
-            for job in here + helper:
+            for job in jobs:
                 job.compile()
                 kernels.update(1)
             if step:

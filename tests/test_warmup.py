@@ -11,6 +11,8 @@ from pathlib import Path
 
 from conftest import cloth_dict, scene_dict
 
+from pipeline import warmup
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
@@ -51,3 +53,24 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
     warm = _render(scene, tmp_path / "warm.gif", cache, decoy.parent)
     assert "compile" not in warm, warm
     assert (tmp_path / "cold.gif").read_bytes() == (tmp_path / "warm.gif").read_bytes()
+
+
+def _finish(here, helper, step):
+    """When each process ends its share, as estimate_seconds counts it (no contention)."""
+    return warmup.estimate_seconds(here, helper, True, step) / warmup.CONTENTION
+
+
+def test_split_balances_the_two_processes():
+    names = list(warmup.COMPILE_SECONDS)
+    for mask in range(1, 2 ** len(names)):
+        jobs = [warmup.Job(n, ()) for k, n in enumerate(names) if mask >> k & 1]
+        for step in (False, True):
+            here, helper = warmup.split(jobs, True, step)
+            assert sorted(j.name for j in here + helper) == sorted(j.name for j in jobs)
+            best = min(_finish([j for k, j in enumerate(jobs) if side >> k & 1],
+                               [j for k, j in enumerate(jobs) if not side >> k & 1], step)
+                       for side in range(2 ** len(jobs)))
+            # longest first to the emptier side: within 4/3 of the best split (Graham)
+            assert _finish(here, helper, step) <= best * 4 / 3 + 1e-9
+    jobs = [warmup.Job(n, ()) for n in names]
+    assert warmup.split(jobs, False, True) == (jobs, [])  # one process: all of it here
