@@ -6,9 +6,10 @@ README's first command: 44 of its 46 s, 2026-11-24), and numba compiles in Pytho
 the GIL, so threads cannot share the work. `warm_up` finds which of a scene's kernels are
 not cached yet. If both the simulator's and the renderer's are missing, a helper process
 (`python -m pipeline.warmup`) compiles the renderer's and part of the simulator's while
-this process compiles the rest (`split`, by their measured compile times), then this process compiles the integrator's stepping kernel
-on top of both (loading the helper's work from the cache). The cache is safe for two
-writers (shading.jit). Otherwise everything missing is compiled here, as before.
+this process compiles the rest (`split`, by their measured compile times), then this
+process compiles the integrator's stepping kernel on top of both (loading the helper's
+work from the cache). The cache is safe for two writers (shading.jit). Otherwise
+everything missing is compiled here, as before.
 
 The helper is sent plain data (the packed System, the scene, the cloth model), never numba
 objects. Its jobs are named `module:function`. Whatever it fails to do is compiled here
