@@ -533,17 +533,22 @@ def _triangles(x, y, params, t, mode, lo, hi, out):
     _spread_pass(params, t, s, m, 0.0, 1.0, out, c2)
 
 
-@njit(cache=True, nogil=True)
-def _hinges(x, y, params, k, mode, lo, hi, out):
-    """Add the hinges of kind k anchored in [lo, hi) to out, as _triangles."""
+@njit(cache=True, nogil=True, inline="always")
+def _hinge_anchors(params, k, lo, hi, n):
+    """(vertex offsets, start, stop): the hinges of kind k anchored in [lo, hi) of n points
+    are those anchored in [start, stop) (none if stop <= start)."""
     o = (params.offsets[HINGE_VERTICES[k, 0]], params.offsets[HINGE_VERTICES[k, 1]],
          params.offsets[HINGE_VERTICES[k, 2]], params.offsets[HINGE_VERTICES[k, 3]])
-    start = max(lo, -min(o[0], o[1], o[2], o[3]))
-    stop = min(hi, x.shape[1] - max(o[0], o[1], o[2], o[3]))
+    return (o, max(lo, -min(o[0], o[1], o[2], o[3])),
+            min(hi, n - max(o[0], o[1], o[2], o[3])))
+
+
+@njit(cache=True, nogil=True)
+def _hinges(x, y, params, k, mode, lo, hi, out):
+    """Add the hinges of kind k anchored in [lo, hi) to out, as _triangles (not for
+    PRODUCT: fem_jacobian_product adds the exact hinges itself)."""
+    o, start, stop = _hinge_anchors(params, k, lo, hi, x.shape[1])
     if stop <= start:
-        return
-    if mode == PRODUCT:
-        _exact_hinges(x, y, params, k, o, start, stop, out)
         return
     s, m = np.uint64(start), np.uint64(stop - start)
     c = (np.uint64(start + o[0]), np.uint64(start + o[1]), np.uint64(start + o[2]),
@@ -575,7 +580,7 @@ def _band(x, y, params, mode, band, bands, out):
     lo, hi = (band * rows // bands) * nw, ((band + 1) * rows // bands) * nw
     for t in range(TRIANGLE_KINDS):
         _triangles(x, y, params, t, mode, lo, hi, out)
-    if params.k_bend != 0.0:
+    if params.k_bend != 0.0 and mode != PRODUCT:
         for k in range(HINGE_KINDS):
             _hinges(x, y, params, k, mode, lo, hi, out)
 
@@ -643,9 +648,18 @@ def add_fem_forces(x: np.ndarray, params: FemParams, f: np.ndarray) -> None:
 def fem_jacobian_product(x: np.ndarray, params: FemParams, y: np.ndarray,
                          out: np.ndarray) -> None:
     """out = K y, K = d f / d x = -(Hessian of E) at x (3N x 3N, symmetric; exact, so it may
-    be indefinite away from rest), matrix-free."""
+    be indefinite away from rest), matrix-free. The exact hinges are a serial loop after
+    the parallel pass over the triangles: compiled only when this kernel is (tests, Newton
+    solvers), not with the simulation's element pass."""
     out[:] = 0.0
     _element_pass(x, y, params, np.int64(PRODUCT), out)
+    if params.k_bend != 0.0:
+        for k in range(HINGE_KINDS):
+            # every element is anchored in a cell row, as _band counts them
+            o, start, stop = _hinge_anchors(params, k, 0, (params.nh - 1) * params.nw,
+                                            x.shape[1])
+            if stop > start:
+                _exact_hinges(x, y, params, k, o, start, stop, out)
 
 
 @njit(cache=True, nogil=True)
