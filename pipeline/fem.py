@@ -317,7 +317,7 @@ def _hinge_gradient_derivative(a, b, c, d, ya, yb, yc, yd, length, n1, n2, inv1,
 # are uint64: numba then emits no wraparound test and LLVM vectorises. `out` is (3, N).
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _deform_pass(x, c0, c1, c2, params, t, s, m, row):
     """scratch[row:row + 6] = (w_u, w_v) of the triangles of kind t at positions x."""
     inv, sc = params.tri_inv, params.scratch
@@ -331,7 +331,7 @@ def _deform_pass(x, c0, c1, c2, params, t, s, m, row):
         sc[row + 3, a], sc[row + 4, a], sc[row + 5, a] = v
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _stress_pass(params, t, s, m):
     """(dE/dw_u, dE/dw_v) from (w_u, w_v)."""
     sc, area = params.scratch, params.tri_area
@@ -345,7 +345,7 @@ def _stress_pass(params, t, s, m):
         sc[PV, a], sc[PV + 1, a], sc[PV + 2, a] = gv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _hessian_pass(params, t, s, m, filtered):
     """The derivative of (dE/dw_u, dE/dw_v) along (dw_u, dw_v), in place of the stress."""
     sc, area = params.scratch, params.tri_area
@@ -361,7 +361,7 @@ def _hessian_pass(params, t, s, m, filtered):
         sc[PV, a], sc[PV + 1, a], sc[PV + 2, a] = gv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _spread_pass(params, t, s, m, sa, sb, out, c):
     """out[:, c + i] -= pu cu + pv cv with (pu, pv) the stress rows, cu = sa R^-1_00 +
     sb R^-1_10 and cv = sa R^-1_01 + sb R^-1_11: minus the gradient at one vertex
@@ -376,7 +376,7 @@ def _spread_pass(params, t, s, m, sa, sb, out, c):
         out[2, c + i] -= sc[PU + 2, a] * cu + sc[PV + 2, a] * cv
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _membrane_diagonal_pass(params, t, s, m, sa, sb, out, c):
     """out[:, c + i] += the diagonal of the filtered membrane Hessian block of one vertex (as
     _spread_pass): cu^2 H_uu + 2 cu cv H_uv + cv^2 H_vv, H_uv = a k_shear w_v w_u^T."""
@@ -395,7 +395,7 @@ def _membrane_diagonal_pass(params, t, s, m, sa, sb, out, c):
         out[2, c + i] += cu * cu * huu[2] + 2.0 * cu * cv * kb * u[2] * v[2] + cv * cv * hvv[2]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _normal_one_pass(x, ca, cb, cc, params, s, m):
     """N1, t1, |e| and 1 / |e| of the hinges with vertices a, b, c at x."""
     sc = params.scratch
@@ -408,7 +408,7 @@ def _normal_one_pass(x, ca, cb, cc, params, s, m):
         sc[T1, a], sc[LENGTH, a], sc[INV_LENGTH, a] = t, length, il
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _normal_two_pass(x, ca, cb, cd, params, s, m):
     """N2, t2 and theta of the hinges with vertices a, b, d at x (after _normal_one_pass)."""
     sc = params.scratch
@@ -423,7 +423,7 @@ def _normal_two_pass(x, ca, cb, cd, params, s, m):
         sc[T2, a], sc[THETA, a] = t, theta
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _project_pass(y, ca, cb, cc, params, normal, t, s, m, accumulate):
     """d theta (+)= q . ((|e| - t) ya + t yb - |e| yc), q = N / |N|^2 with N, t the rows
     `normal`, `t` of one triangle of each hinge and yc its opposite vertex."""
@@ -441,7 +441,7 @@ def _project_pass(y, ca, cb, cc, params, normal, t, s, m, accumulate):
         sc[DTHETA, a] = sc[DTHETA, a] + v if accumulate else v
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _scale_pass(params, k, r, coefficient, s, m):
     """S_j = coefficient f r N_j / |N_j|^2 (j = 1, 2; r a scratch row; 0 for a zero normal)."""
     sc, factor = params.scratch, params.edge_factor
@@ -458,7 +458,7 @@ def _scale_pass(params, k, r, coefficient, s, m):
             N2 + 2, a]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _vertex_pass(params, k, s, m, gradient, square, out, c):
     """out[:, c + i] += v = (e1 |e| + f1 t1) S1 + (e2 |e| + f2 t2) S2 ((e1, f1, e2, f2) =
     `gradient`: one vertex's d theta / dx times the scale), or (2 k_bend / f) v^2 per axis if
@@ -481,7 +481,7 @@ def _vertex_pass(params, k, s, m, gradient, square, out, c):
         out[2, c + i] += v2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _exact_hinges(x, y, params, k, c, start, stop, out):
     """out += K y of the hinges of kind k anchored in [start, stop) (vertex offsets c): the
     exact bending Hessian 2 k_bend f (g g^T + theta dg/dx), g = d theta / dx. Scalar."""
@@ -505,7 +505,7 @@ def _exact_hinges(x, y, params, k, c, start, stop, out):
 # --- one element kind over a range of anchors --------------------------------------------------
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _triangles(x, y, params, t, mode, lo, hi, out):
     """Add the triangles of kind t anchored in [lo, hi) to out: minus the gradient of E
     (FORCE), K y (PRODUCT), K_f y (FILTERED_PRODUCT) or the diagonal of -K_f (DIAGONAL)."""
@@ -543,7 +543,7 @@ def _hinge_anchors(params, k, lo, hi, n):
             min(hi, n - max(o[0], o[1], o[2], o[3])))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _hinges(x, y, params, k, mode, lo, hi, out):
     """Add the hinges of kind k anchored in [lo, hi) to out, as _triangles (not for
     PRODUCT: fem_jacobian_product adds the exact hinges itself)."""
@@ -572,7 +572,7 @@ def _hinges(x, y, params, k, mode, lo, hi, out):
         _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _band(x, y, params, mode, band, bands, out):
     """Add the elements anchored in cell rows [band * rows // bands, (band + 1) * rows //
     bands) to out (rows = nh - 1)."""
@@ -585,7 +585,7 @@ def _band(x, y, params, mode, band, bands, out):
             _hinges(x, y, params, k, mode, lo, hi, out)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _bands_of_parity(x, y, params, mode, parity, bands, out):
     """Add the elements of bands parity, parity + 2, ... to out, in parallel."""
     for b in prange(bands // 2):

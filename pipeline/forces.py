@@ -55,7 +55,7 @@ def _chunk(c, n):
 # negative and emits no wraparound select per load, and with error_model="numpy" no
 # zero-division branch either, so LLVM vectorises them. Same arithmetic, same bits.
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
     """f_d[:, p] = force of the spring (d, p) on p for p in [lo, hi) (0 where none)."""
     start = min(max(lo, -off), hi)  # the neighbour p + off must be a point
@@ -77,7 +77,7 @@ def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
         fz[i] = (dz / length) * s if ok else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
     """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
@@ -99,7 +99,7 @@ def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
                 out[i] -= other[i]
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
     """spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none)."""
     n = x.shape[1]
@@ -110,7 +110,7 @@ def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
                               lo, hi)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f):
     """f[:] = mass * gravity + the spring forces at positions x (3, N); mass is (N,)."""
     compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force)
@@ -134,7 +134,7 @@ def total_force(x, v, t, s, f):
 # for every System type, and no half-second entry point that unboxes the whole System).
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                     spring_force, f):
     """f[:] = gravity + the elastic forces: the FEM's (fem not None) or the springs'."""

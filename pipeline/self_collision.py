@@ -125,7 +125,7 @@ def _hash_boxes(box, bucket_of, keys, slot_bucket, slot_generation, generation):
     return nbuckets
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _bin(x, w, h, t, scratch):
     """Assign boxes, sort members by box (ascending point order inside), copy positions."""
     (keys, slot_bucket, slot_generation, generation, box, bucket_of, start, fill, members,
@@ -165,7 +165,7 @@ def _squared_distances(px, py, pz, xs, lo, hi, out):
         out[i] = dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
     """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel)."""
     bucket_of, start, members, xs, slot_of, dist_sq = (

@@ -258,7 +258,7 @@ def position_passes(x, last, system, t_start):
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _self_collide_if_on(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
     # numba prunes the call when the scene turns self-collision off (scratch None): a
     # scene without it never compiles self_collide (5 s on a first run)
@@ -266,7 +266,7 @@ def _self_collide_if_on(x, pinned, width, height, nw, nh, thickness, steps_per_f
         self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _classic_stretch_limit(x, fem, offsets, exist_bits, limit, limit_sq_lo, pinned, mask):
     if fem is None:  # numba prunes the call for the FEM model
         limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, mask)

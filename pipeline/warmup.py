@@ -37,13 +37,13 @@ from .progress import bar
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.2, "pipeline.forces:total_force": 6.1,
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.1, "pipeline.forces:total_force": 5.7,
                    "pipeline.self_collision:self_collide": 5.0,
-                   "pipeline.system:_classic_stretch_limit": 2.9,
-                   "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.3,
+                   "pipeline.system:_classic_stretch_limit": 2.6,
+                   "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.2,
                    "pipeline.system:energy_guard": 0.2}
-RENDER_SECONDS = 11.3  # every renderer kernel for one shader
-STEP_SECONDS = 4.2  # the integrator's stepping kernel (position passes and guard inlined)
+RENDER_SECONDS = 11.2  # every renderer kernel for one shader
+STEP_SECONDS = 3.3  # the integrator's stepping kernel (position passes and guard inlined)
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 

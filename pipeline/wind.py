@@ -175,7 +175,7 @@ def _triangle(ex, ey, ez, gx, gy, gz, sx, sy, sz, drag, lift):
     return along_c * cx + along_s * sx, along_c * cy + along_s * sy, along_c * cz + along_s * sz
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, no_cpython_wrapper=True)
 def _triangles(point, i1, i2, i3, m, drag, lift, out, t0):
     """out[:, t0 + j] = per-vertex force of the triangle of points (i1 + j, i2 + j, i3 + j),
     j < m, indices into the band's `point` rows."""
@@ -194,7 +194,7 @@ def _triangles(point, i1, i2, i3, m, drag, lift, out, t0):
             drag, lift)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _gather(tri, f, lo, hi, t0, nw):
     """f[:, lo:hi] += the forces of the (up to six) triangles at each point; the cell with
     corner A = p is at tri[:, :, p - lo + t0] (zero where there is no cell)."""
@@ -210,7 +210,7 @@ def _gather(tri, f, lo, hi, t0, nw):
             out[j] += below[j] + below_l[j] + below_l1[j] + above[j] + above1[j] + above1_l[j]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _band(x, v, w, f, band):
     """The wind forces on the point rows of one band."""
     nw, nh, bands = w.nw, w.nh, w.point.shape[0]
@@ -237,7 +237,7 @@ def _band(x, v, w, f, band):
     _gather(tri, f, r0 * nw, r1 * nw, t0 + (r0 - a0) * nw, nw)
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _all_bands(x, v, w, f):
     for band in prange(w.point.shape[0]):
         _band(x, v, w, f, np.int64(band))  # as below: one compile of _band

@@ -156,7 +156,7 @@ def _put_tri(m, a, b, c, flag, src, area, x0, x1, y0, y1, pv, pflag, psrc, pbox,
         band_start[k + 1] += 1
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _clip_tri(t, tris, clip, nv, m, e, W, H, vx, vy, vz, viw, wb, pv, pflag, psrc, pbox,
               band_start):
     """Triangle t clipped (Sutherland-Hodgman) against the near plane and the guard band;

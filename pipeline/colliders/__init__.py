@@ -228,7 +228,7 @@ def update_poses(table, t_start, t_end):
             pose_at(table.keys[c], n, t_end, table.pose[c, 1])
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True)
 def _collide_range(x, last, pinned, table, lo, hi):
     """collide_point on the free points [lo, hi). Compiled without numba's reference counts
     (`_nrt=False`, as numba's own sort and string kernels are: nothing here allocates): with
@@ -244,7 +244,7 @@ def _collide_range(x, last, pinned, table, lo, hi):
             last[0, p], last[1, p], last[2, p])
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _collide_points(x, last, pinned, table):
     # The parallel loop only calls _collide_range: numba copies a parallel loop's body
     # several times while compiling it, so the colliders' inlined code stays out of it.

@@ -35,7 +35,7 @@ class State:
         return advance(system, self.x, self.last, self.v, self.force, steps, first_step)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _update(x, last, force, pinned, mass, keep, dt2, lo, hi):
     """The Verlet step of points [lo, hi); a vectorisable loop (pins are a select)."""
     pin = pinned[lo:hi]
@@ -50,7 +50,7 @@ def _update(x, last, force, pinned, mass, keep, dt2, lo, hi):
             la[i] = xi if free else la[i]
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _update_all(x, last, force, pinned, mass, keep, dt2):
     n = x.shape[1]
     for c in prange(CHUNKS):
