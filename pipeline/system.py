@@ -122,8 +122,8 @@ GUARD_FACTOR = 2.0
 # The guard's and the passes' kernels take the System's fields, not the System: a kernel
 # that takes the System compiles again for each of its types (wind, FEM), and its Python
 # entry point alone (unboxing every array of the System) costs about 0.5 s to compile.
-# Those that must see the System are inlined into the integrator's stepping kernel
-# (forces.total_force, called from Python too, is the exception).
+# Those that must see the System (forces.total_force too) are inlined into the
+# integrator's stepping kernel.
 
 
 @njit(cache=True, nogil=True)

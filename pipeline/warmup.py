@@ -37,11 +37,11 @@ from .progress import bar
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.1, "pipeline.forces:total_force": 5.7,
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.1, "pipeline.forces:internal_forces": 4.4,
                    "pipeline.self_collision:self_collide": 5.0,
                    "pipeline.system:_classic_stretch_limit": 2.6,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.2,
-                   "pipeline.system:energy_guard": 0.2}
+                   "pipeline.system:energy_guard": 0.2, "pipeline.wind:add_wind_force": 6.9}
 RENDER_SECONDS = 11.2  # every renderer kernel for one shader
 STEP_SECONDS = 3.3  # the integrator's stepping kernel (position passes and guard inlined)
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
@@ -86,7 +86,10 @@ def sim_jobs(system) -> list[Job]:
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
-    args = {"pipeline.forces:total_force": (x, v, 0.0, s, f),
+    args = {"pipeline.forces:internal_forces": (x, s.fem, s.offsets, s.gather_order, s.exists,
+                                                s.rest, s.stiffness, s.mass, s.gravity,
+                                                s.spring_force, f),
+            "pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
             "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
             "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass, s.slack_speed),
             "pipeline.colliders:collide_all": (x, last, s.pinned, s.colliders, 0.0, s.dt),
@@ -98,7 +101,9 @@ def sim_jobs(system) -> list[Job]:
             "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
     if s.scratch is None:
         del args["pipeline.self_collision:self_collide"]
-    return [Job(n, args[n]) for n in COMPILE_SECONDS if n in args]
+    if s.wind is None:  # pruned from the stepping kernel
+        del args["pipeline.wind:add_wind_force"]
+    return [Job(n, args[n]) for n in sorted(args, key=COMPILE_SECONDS.get, reverse=True)]
 
 
 def split(jobs: list[Job], two_processes: bool, step: bool) -> tuple[list[Job], list[Job]]:

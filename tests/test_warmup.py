@@ -48,7 +48,7 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
     # the helper's share (forces, the renderer's fragment stage) and this process's share
     # (colliders) are all in the one cache
     names = {p.name.split("-")[0] for p in cache.rglob("*.nbi")}
-    assert {"forces.total_force", "__init__.collide_all", "shade._fragment_stage",
+    assert {"forces.internal_forces", "__init__.collide_all", "shade._fragment_stage",
             "verlet.advance"} <= names, sorted(names)
     warm = _render(scene, tmp_path / "warm.gif", cache, decoy.parent)
     assert "compile" not in warm, warm
