@@ -4,11 +4,11 @@ numba compiles a kernel on its first call and caches the machine code on disk; l
 load it in milliseconds. On an empty cache compiling is nearly all of a short render (the
 README's first command: 44 of its 46 s, 2026-11-24), and numba compiles in Python, under
 the GIL, so threads cannot share the work. `warm_up` finds which of a scene's kernels are
-not cached yet. If both the simulator's and the renderer's are missing, a helper process
-(`python -m pipeline.warmup`) compiles the renderer's and part of the simulator's while
-this process compiles the rest (`split`, by their measured compile times), then this
-process compiles the integrator's stepping kernel on top of both (loading the helper's
-work from the cache). The cache is safe for two writers (shading.jit). Otherwise
+not cached yet. When two processes would finish sooner (`split`, by the kernels' measured
+compile times), a helper process (`python -m pipeline.warmup`) compiles part of the
+simulator's and then the renderer's (if missing) while this process compiles the rest,
+then this process compiles the integrator's stepping kernel on top of both (loading the
+helper's work from the cache). The cache is safe for two writers (shading.jit). Otherwise
 everything missing is compiled here, as before.
 
 The helper is sent plain data (the packed System, the scene, the cloth model), never numba
@@ -106,26 +106,23 @@ def sim_jobs(system) -> list[Job]:
     return [Job(n, args[n]) for n in sorted(args, key=COMPILE_SECONDS.get, reverse=True)]
 
 
-def split(jobs: list[Job], two_processes: bool, step: bool) -> tuple[list[Job], list[Job]]:
-    """(this process's jobs, the helper's; all here in one process): each job, longest
-    first, to the side with less to compile so far, this process ending with the stepping
-    kernel and the helper with the renderer's (the stepping kernel waits for both sides'
-    simulation kernels; the helper starts HELPER_START late and does its share of them
-    first)."""
+def split(jobs: list[Job], render: bool, step: bool) -> tuple[list[Job], list[Job], bool]:
+    """(this process's jobs, the helper's, whether to start the helper): each job, longest
+    first, to the side where estimate_seconds ends sooner, this process ending with the
+    stepping kernel and the helper with the renderer's (when `render`); the helper only
+    when that beats compiling everything here, two compiles at once being slower."""
+    alone = estimate_seconds(jobs, [], render, step, False)
     here: list[Job] = []
     helper: list[Job] = []
-    if not two_processes:
-        return list(jobs), helper
-    mine, theirs = (STEP_SECONDS if step else 0.0), HELPER_START + RENDER_SECONDS
     for job in jobs:
-        seconds = COMPILE_SECONDS[job.name]
-        if mine <= theirs:
+        if (estimate_seconds(here + [job], helper, render, step, True)
+                <= estimate_seconds(here, helper + [job], render, step, True)):
             here.append(job)
-            mine += seconds
         else:
             helper.append(job)
-            theirs += seconds
-    return here, helper
+    if estimate_seconds(here, helper, render, step, True) < alone:
+        return here, helper, True
+    return list(jobs), [], False
 
 
 @dataclass
@@ -160,15 +157,16 @@ def _stepping_cached(sim) -> bool:
             or any(sig and sig[0] == system_type for sig, *_ in _cache_index(disp)))
 
 
-def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool) -> float:
-    """The first-run message's estimate (on this 2-core machine, idle): with the renderer's
-    kernels and others to compile, both processes' simulation shares, then the stepping
-    kernel here while the helper compiles the renderer's; else all of it in this process."""
+def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool,
+                     two_processes: bool) -> float:
+    """The first-run message's estimate (on this 2-core machine, idle): in two processes,
+    both simulation shares (the helper's from HELPER_START), then the stepping kernel here
+    while the helper compiles the renderer's (`render`); else all of it in this process."""
     mine = sum(COMPILE_SECONDS[j.name] for j in here)
     theirs = sum(COMPILE_SECONDS[j.name] for j in helper)
     stepping = STEP_SECONDS if step else 0.0
     rendering = RENDER_SECONDS if render else 0.0
-    if render and (here or helper or step):
+    if two_processes:
         helper_done = HELPER_START + theirs
         return CONTENTION * max(max(mine, helper_done) + stepping, helper_done + rendering)
     return mine + theirs + stepping + rendering
@@ -189,15 +187,14 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
         return 0.0
     if not (jobs or step or render_cold):
         return 0.0
-    two_processes = render_cold and bool(jobs or step)
-    here, helper = split(jobs, two_processes, step)
+    here, helper, two_processes = split(jobs, render_cold, step)
     if say is not None:
-        seconds = estimate_seconds(here, helper, render_cold, step)
+        seconds = estimate_seconds(here, helper, render_cold, step, two_processes)
         say(f"compiling kernels for this machine (first run only, about {seconds:.0f} s)")
     kernels = bar(len(jobs) + int(step) + int(render_cold), "compile", "kernel", progress, 0)
     try:
         if two_processes:
-            _in_two_processes(sim, here, helper, render, kernels)
+            _in_two_processes(sim, here, helper, render if render_cold else None, kernels)
         else:
             for job in jobs:
                 job.compile()
@@ -213,7 +210,7 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     return time.perf_counter() - start
 
 
-def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob,
+def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob | None,
                       kernels) -> None:
     """Both shares at once; the helper reports each kernel it finishes on its stdout."""
     payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
@@ -264,7 +261,7 @@ SIMULATION_DONE = b"simulation"
 
 def _helper_main() -> None:
     """The helper process: compile the jobs read from stdin, one line per kernel, then the
-    renderer's."""
+    renderer's (if sent)."""
     helper, render = pickle.loads(sys.stdin.buffer.read())
     out = sys.stdout.buffer
     for job in helper:
@@ -273,9 +270,10 @@ def _helper_main() -> None:
         out.flush()
     out.write(SIMULATION_DONE + b"\n")
     out.flush()
-    render.run()
-    out.write(b"render\n")
-    out.flush()
+    if render is not None:
+        render.run()
+        out.write(b"render\n")
+        out.flush()
 
 
 if __name__ == "__main__":
