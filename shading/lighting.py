@@ -99,9 +99,18 @@ def bump_normal(n0, t, v, uv, hmap, kh, kn):
     forward differences of one texel; the result gets the sign of the two-sided flip."""
     hh = hmap.shape[0]
     hw = hmap.shape[1]
-    h0 = bilinear(hmap, uv[0], uv[1], True)[0]
-    hu = bilinear(hmap, uv[0] + 1.0 / hw, uv[1], True)[0]
-    hv = bilinear(hmap, uv[0], uv[1] + 1.0 / hh, True)[0]
+    # the three samples in a loop: one call site, so numba inlines bilinear once, not
+    # three times (most of bump's first compile); u + 0.0 is u, bit for bit
+    h0 = hu = hv = 0.0
+    for k in range(3):
+        h = bilinear(hmap, uv[0] + (1.0 / hw if k == 1 else 0.0),
+                     uv[1] + (1.0 / hh if k == 2 else 0.0), True)[0]
+        if k == 0:
+            h0 = h
+        elif k == 1:
+            hu = h
+        else:
+            hv = h
     du = (hu - h0) * kh * kn
     dv = (hv - h0) * kh * kn
     b = cross(n0, t)
