@@ -16,12 +16,25 @@ import contextlib
 import itertools
 import os
 
-from numba import njit, prange
+import numba
+from numba import prange
 from numba.core import caching
 
 __all__ = ["njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
+
+
+def njit(*args, **options):
+    """numba.njit; `parallel=True` converts only explicit `prange` loops. Every parallel
+    kernel here is a prange over chunks of scalar loops, so numba's other conversions
+    (array expressions, reductions, fusion of loops) find nothing to do and only cost
+    compile time (a first FEM element pass compiles about 1 s sooner without them)."""
+    if options.get("parallel") is True:
+        options["parallel"] = dict(prange=True, comprehension=False, reduction=False,
+                                   inplace_binop=False, setitem=False, numpy=False,
+                                   stencil=False, fusion=False)
+    return numba.njit(*args, **options)
 
 
 def read_only(array):
