@@ -570,7 +570,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
             for k, pos in frames:
                 consume(k, pos)
         else:
-            _pipelined(frames, consume, threads_per_stage=1 if mode == "split" else None)
+            _pipelined(frames, consume, depth=queue_depth(sim.positions.nbytes),
+                       threads_per_stage=1 if mode == "split" else None)
     finally:
         sim_bar.close()
         out_bar.close()
@@ -686,12 +687,22 @@ def _pipeline_mode(requested: str, framed: bool = False) -> str:
     return mode
 
 
+QUEUE_BYTES = 32 << 20  # positions the simulation may run ahead of the drawing
+
+
+def queue_depth(frame_bytes: int) -> int:
+    """Frames of positions queued between the stages: QUEUE_BYTES of them, at least 4, so a
+    simulation faster than the drawing ends early and frees its cores (_run_pipeline)."""
+    return max(4, QUEUE_BYTES // max(1, frame_bytes))
+
+
 def _pipelined(frames, consume, depth: int = 4, threads_per_stage: int | None = None) -> None:
     """Simulate in this thread while a worker thread renders and encodes earlier frames.
 
     Output is identical to the serial order: one worker, frames consumed in order.
-    A bounded queue keeps memory flat; an error in either thread stops both.
-    threads_per_stage: numba threads for each stage's parallel kernels (thread-local).
+    A queue of at most `depth` frames keeps memory flat; an error in either thread stops
+    both. threads_per_stage: numba threads for each stage's parallel kernels (thread-local);
+    once the last frame is queued, the worker draws the rest on every core.
     """
     if threads_per_stage is None:
         _run_pipeline(frames, consume, depth, threads_per_stage)
@@ -705,18 +716,22 @@ def _pipelined(frames, consume, depth: int = 4, threads_per_stage: int | None = 
 def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:
     q: queue.Queue = queue.Queue(maxsize=depth)
     stop = threading.Event()
+    simulated = threading.Event()  # every frame is queued: the simulation's cores are free
     failure: list[BaseException] = []
     done = object()
 
     def worker():
-        if threads_per_stage is not None:
-            import numba
+        import numba
 
+        if threads_per_stage is not None:
             numba.set_num_threads(threads_per_stage)
         while True:
             item = q.get()
             if item is done or stop.is_set():
                 return
+            if simulated.is_set() and threads_per_stage is not None:
+                # the frames left are drawn on every core (the image does not depend on it)
+                numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
             try:
                 consume(*item)
             except BaseException as exc:  # noqa: BLE001 - handed to the main thread
@@ -742,6 +757,7 @@ def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:
         for item in frames:
             if not put(item):
                 break
+        simulated.set()
         put(done)
         t.join()
     except BaseException:

@@ -296,6 +296,27 @@ def test_auto_pipeline_mode(monkeypatch, layer, framed, expected):
                                                           else "split")
 
 
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
+def test_split_pipeline_draws_on_every_core_once_every_frame_is_simulated():
+    import time
+
+    import numba
+
+    seen = []
+
+    def consume(k, pos):
+        seen.append(numba.get_num_threads())
+        time.sleep(0.01)
+
+    before = numba.get_num_threads()
+    # 10 frames through a 4-frame queue: the first is drawn while 5 are still to come
+    cli._pipelined(((k, None) for k in range(10)), consume, depth=4, threads_per_stage=1)
+    assert seen[0] == 1 and seen[-1] == numba.config.NUMBA_NUM_THREADS
+    assert numba.get_num_threads() == before
+    # the simulation may run 32 MB of positions ahead (the README's cloth: 559 frames)
+    assert cli.queue_depth(2500 * 3 * 8) == 559 and cli.queue_depth(1 << 30) == 4
+
+
 def test_summary_line(env, scene, tmp_path, capsys):
     code, out, err = run(capsys, scene, "--out", tmp_path / "c.gif", "--size", "64x64",
                          "--duration", "0.2")
