@@ -100,7 +100,7 @@ def bump_normal(n0, t, v, uv, hmap, kh, kn):
     hh = hmap.shape[0]
     hw = hmap.shape[1]
     # the three samples in a loop: one call site, so numba inlines bilinear once, not
-    # three times (most of bump's first compile); u + 0.0 is u, bit for bit
+    # three times (most of bump's first compile); u + 0.0 samples exactly as u does
     h0 = hu = hv = 0.0
     for k in range(3):
         h = bilinear(hmap, uv[0] + (1.0 / hw if k == 1 else 0.0),
