@@ -51,13 +51,17 @@ class System(NamedTuple):
     wind: WindParams | None  # None: no wind (pruned from the kernels)
     fem: FemParams | None  # the finite-element model; None: the classic springs
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
-    self_collision: bool
     scratch: tuple | None  # SelfCollisionScratch.as_tuple(); None: off (pruned from the kernels)
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
     mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
+
+    @property
+    def self_collision(self) -> bool:
+        """Whether the scene turns self-collision on (for Python; kernels test the scratch)."""
+        return self.scratch is not None
 
 
 def build_system(scene: Scene, model: ClothModel) -> System:
@@ -94,7 +98,6 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),
         fem=model.fem,
         needs_velocity=scene.wind is not None,
-        self_collision=scene.self_collision,
         scratch=SelfCollisionScratch(model.n).as_tuple() if scene.self_collision else None,
         spring_force=spring_force_buffer(model.n, model.nw),
         mask=candidate_mask(model.n),
@@ -246,10 +249,8 @@ def position_passes(x, last, system, t_start):
     proves idle are skipped."""
     s = system
     reach_check(x, s.reach, s.colliders.active, s.thickness)
-    if s.self_collision and s.reach.self_on[0]:
-        s.reach.counts[1] += 1
-        _self_collide_if_on(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
-                            s.steps_per_frame, s.scratch)
+    _self_collision_pass(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
+                         s.steps_per_frame, s.scratch, s.reach.self_on, s.reach.counts)
     if not s.colliders_last:
         collide_all(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     _classic_stretch_limit(x, s.fem, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned,
@@ -259,10 +260,12 @@ def position_passes(x, last, system, t_start):
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _self_collide_if_on(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
-    # numba prunes the call when the scene turns self-collision off (scratch None): a
+def _self_collision_pass(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch,
+                         self_on, counts):
+    # numba prunes the pass when the scene turns self-collision off (scratch None): a
     # scene without it never compiles self_collide (5 s on a first run)
-    if scratch is not None:
+    if scratch is not None and self_on[0]:
+        counts[1] += 1
         self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
 
 
