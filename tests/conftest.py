@@ -22,6 +22,29 @@ def pytest_configure(config):
         numba.set_num_threads(1)
 
 
+#: Files whose tests start new processes (Dask workers, `render` under a signal, a fresh
+#: interpreter) that load their kernels from numba's on-disk cache, and the shader report
+#: (every shader's fragment stage, as in test_shading_golden). On a cold cache they run
+#: last, when the other files have compiled and saved those kernels: run first, each new
+#: process compiles them again, beside two test workers already busy on both cores.
+LAST = ("test_report.py", "test_jit_cache.py", "test_disk_full.py", "test_signals.py",
+        "test_distributed.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Files in pytest-xdist's order (most tests first, as its `--dist loadfile` would;
+    pyproject turns its own reordering off), then LAST in that order."""
+    count: dict[str, int] = {}
+    for item in items:
+        count[item.path.name] = count.get(item.path.name, 0) + 1
+
+    def rank(item):
+        name = item.path.name
+        return (LAST.index(name), 0) if name in LAST else (-1, -count[name])
+
+    items.sort(key=rank)  # stable: a file's tests keep their order
+
+
 def process_alive(pid: int) -> bool:
     """Alive and not a zombie (from /proc)."""
     try:
@@ -32,6 +55,26 @@ def process_alive(pid: int) -> bool:
 
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def child_env(**extra: str) -> dict:
+    """os.environ for a child Python that imports the clothpipe these tests import (the
+    installed package, or the tree when pytest found that), not a copy in its working
+    folder: one source, hence one numba cache shared by the tests and their children.
+    CI installs the package and runs pytest from the clone, where `python -c` would import
+    the clone first and compile every kernel a second time, into the clone's cache."""
+    import site
+
+    import pipeline
+
+    env = dict(os.environ)
+    env["PYTHONSAFEPATH"] = "1"  # Python >= 3.11: no working folder first on sys.path
+    home = str(Path(pipeline.__file__).resolve().parents[1])
+    if home not in {str(Path(p).resolve()) for p in site.getsitepackages()}:
+        env["PYTHONPATH"] = os.pathsep.join(
+            [home] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    env.update(extra)
+    return env
 SCENES = ROOT / "scenes"
 
 #: The five scenes of the course (scene files kept unchanged in scenes/).

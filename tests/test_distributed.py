@@ -21,13 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import cloth_dict, process_alive, scene_dict
+from conftest import child_env, cloth_dict, process_alive, scene_dict
 from distributed import Client, LocalCluster
 
 from pipeline import batch, report
 from pipeline.cli import main
 
-ROOT = Path(__file__).resolve().parents[1]
 SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    steps_per_frame=10, spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
 SMALL = ["--size", "48x48", "--duration", "0.5", "--quiet"]
@@ -60,13 +59,6 @@ def files(folder: Path) -> dict[str, bytes]:
 
 def render_cmd() -> list[str]:
     return [sys.executable, "-c", "import sys; from pipeline.cli import main; sys.exit(main())"]
-
-
-def child_env() -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [
-        p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
-    return env
 
 
 # --------------------------------------------------------------------------- one long render

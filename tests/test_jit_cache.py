@@ -1,4 +1,5 @@
-"""shading.jit: numba's cache index stays right when processes save into it at once."""
+"""numba's on-disk cache: its index stays right when processes save into it at once
+(shading.jit), and a new process loads every renderer kernel from it."""
 from __future__ import annotations
 
 import multiprocessing
@@ -53,3 +54,36 @@ def test_import_shading_does_not_import_numba():
     code = "import sys, pipeline, shading; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+_STARTUP = """
+import numpy as np, shading
+from shading import mesh, raster, renderer
+from shading.shaders import REGISTRY, displacement
+j = np.tile(np.arange(6.0), 6); i = np.repeat(np.arange(6.0), 6)
+pos = np.stack([j / 5, np.ones(36), i / 5], axis=1)
+cam = shading.Camera.default_for_cloth(pos, 1, 1, width=16, height=12)
+ms = [shading.cloth_mesh(pos, 6, 6, np.array([[0, 1]])), shading.sphere_mesh((0.5, 0.2, 0.5), 0.2)]
+for name in shading.SHADERS:
+    shading.render(ms, cam, None, name)
+kernels = [raster.project, raster.setup_triangles, raster.setup_lines, raster.bin_prims,
+           raster.raster_triangles, raster.raster_lines, mesh._normals_tangents,
+           renderer._pack_vertices, renderer._pack_prims, displacement._displace]
+kernels += [shading.shade.fragment_stage]
+print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hits) for k in kernels))
+"""
+
+
+def test_new_process_loads_every_kernel_from_the_disk_cache():
+    """Start-up: every numba kernel the renderer runs is cached on disk (no first-class
+    function arguments), so a new process loads them all and compiles nothing."""
+    import subprocess
+    import sys
+
+    from conftest import child_env
+
+    run = lambda: subprocess.run([sys.executable, "-c", _STARTUP], env=child_env(),  # noqa: E731
+                                 check=True, capture_output=True, text=True).stdout.split()
+    run()  # fills the cache if this is the first use
+    misses, hits = (int(v) for v in run())
+    assert misses == 0 and hits > 0

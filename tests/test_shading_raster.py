@@ -295,38 +295,6 @@ def test_one_fragment_stage_specialised_per_shader():
     assert keys <= compiled and FLAT.stage_key() not in compiled
 
 
-_STARTUP = """
-import numpy as np, shading
-from shading import mesh, raster, renderer
-from shading.shaders import REGISTRY, displacement
-j = np.tile(np.arange(6.0), 6); i = np.repeat(np.arange(6.0), 6)
-pos = np.stack([j / 5, np.ones(36), i / 5], axis=1)
-cam = shading.Camera.default_for_cloth(pos, 1, 1, width=16, height=12)
-ms = [shading.cloth_mesh(pos, 6, 6, np.array([[0, 1]])), shading.sphere_mesh((0.5, 0.2, 0.5), 0.2)]
-for name in shading.SHADERS:
-    shading.render(ms, cam, None, name)
-kernels = [raster.project, raster.setup_triangles, raster.setup_lines, raster.bin_prims,
-           raster.raster_triangles, raster.raster_lines, mesh._normals_tangents,
-           renderer._pack_vertices, renderer._pack_prims, displacement._displace]
-kernels += [shading.shade.fragment_stage]
-print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hits) for k in kernels))
-"""
-
-
-def test_new_process_loads_every_kernel_from_the_disk_cache():
-    """Start-up: every numba kernel the renderer runs is cached on disk (no first-class
-    function arguments), so a new process loads them all and compiles nothing."""
-    import subprocess
-    import sys
-    from pathlib import Path
-    root = str(Path(__file__).resolve().parent.parent)
-    run = lambda: subprocess.run([sys.executable, "-c", _STARTUP], cwd=root, check=True,  # noqa: E731
-                                 capture_output=True, text=True).stdout.split()
-    run()  # fills the cache if this is the first use
-    misses, hits = (int(v) for v in run())
-    assert misses == 0 and hits > 0
-
-
 def test_reuse_after_a_bigger_mesh_with_many_clipped_triangles():
     """Extra vertex slots made by clipping, in a renderer whose buffers were grown by a
     bigger mesh before (regression: the slots' weights must have room too)."""

@@ -18,9 +18,8 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import cloth_dict, process_alive, scene_dict
+from conftest import child_env, cloth_dict, process_alive, scene_dict
 
-ROOT = Path(__file__).resolve().parents[1]
 SCENE = scene_dict(cloth_dict(12, 12, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)],
                    planes=[((0, 0, 0), (0, 1, 0), 0.5)])
@@ -32,14 +31,6 @@ pytestmark = pytest.mark.skipif(not os.path.isdir("/proc/self"), reason="needs /
 def render_cmd() -> list[str]:
     return [sys.executable, "-c", "import sys; from pipeline.cli import main; "
             "sys.exit(main())"]
-
-
-def child_env(**extra) -> dict:
-    env = dict(os.environ)
-    env["PYTHONPATH"] = os.pathsep.join([str(ROOT)] + [p for p in
-                                                       env.get("PYTHONPATH", "").split(os.pathsep) if p])
-    env.update(extra)
-    return env
 
 
 def as_from_a_terminal(ignored: tuple = ()):
