@@ -20,9 +20,16 @@ import numba
 from numba import prange
 from numba.core import caching
 
-__all__ = ["njit", "prange", "read_only"]
+__all__ = ["STAGE", "njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
+
+# Options of the fragment stage (shading/shade.py) and of the helpers it calls rather than
+# inlines: cached, releases the GIL, no zero-division checks (numpy error model), and
+# floating-point contraction / reassociation / reciprocals (a few ulps; no assumptions
+# about NaN or infinities). One set, so a helper's arithmetic is the same called or inlined.
+STAGE = dict(cache=True, nogil=True, error_model="numpy",
+             fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 
 
 def njit(*args, **options):

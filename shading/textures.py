@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
-from .jit import njit
+from .jit import STAGE, njit
 
 CUBE_FACES = ("posx", "negx", "posy", "negy", "posz", "negz")
 DEFAULT_TEXTURE = "cloth.png"
@@ -201,7 +201,7 @@ def cube_face_st(d):
     return 5, (-x / az + 1.0) * 0.5, (-y / az + 1.0) * 0.5
 
 
-@njit(cache=True, inline="always")
+@njit(**STAGE)
 def sample_cube(cube, d):
     """Cube map (6, s, s, 3) along direction d: bilinear within the face, clamped."""
     if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:

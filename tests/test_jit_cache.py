@@ -69,7 +69,9 @@ for name in shading.SHADERS:
 kernels = [raster.project, raster.setup_triangles, raster.setup_lines, raster.bin_prims,
            raster.raster_triangles, raster.raster_lines, mesh._normals_tangents,
            renderer._pack_vertices, renderer._pack_prims, displacement._displace]
-kernels += [shading.shade.fragment_stage]
+kernels += [shading.shade.fragment_stage, shading.shade.fetch, shading.shade.begin_row,
+            shading.lighting.blinn_phong, shading.lighting.bump_normal,
+            shading.textures.sample_cube]
 print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hits) for k in kernels))
 """
 
