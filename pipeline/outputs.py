@@ -431,6 +431,7 @@ class Mp4Writer(_Atomic):
         if self._proc.wait() != 0:
             raise self._failed(None)
         self._reader.join()
+        self._proc.stderr.close()
         self._proc = None
 
     def _close_handles(self) -> None:

@@ -1,7 +1,9 @@
 """Output writers: formats read back, durations, palettes, atomicity."""
 from __future__ import annotations
 
+import gc
 import os
+import warnings
 from types import SimpleNamespace
 
 import numpy as np
@@ -269,6 +271,18 @@ def test_mp4(tmp_path, size, expected):
     assert "h264" in meta["codec"]
     assert "yuv420p" in meta.get("pix_fmt", "yuv420p")
     assert listing(tmp_path) == ["a.mp4"]
+
+
+def test_mp4_leaves_no_pipe_open(tmp_path):
+    """ffmpeg's pipes are closed when the file is finished (render shows Python's warnings
+    to the user: an unclosed pipe was one, "unclosed file <_io.BufferedReader name=6>")."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("always", ResourceWarning)
+        with Mp4Writer(tmp_path / "a.mp4") as writer:
+            writer.add(frames(1)[0])
+        del writer
+        gc.collect()
+    assert [str(w.message) for w in seen] == []
 
 
 def test_mp4_abort(tmp_path):
