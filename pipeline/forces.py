@@ -295,29 +295,36 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
 # --- the elastic force Jacobian of either model, for implicit Euler ------------------------
 
 
+# They take the fields they read, not the System: `springs` is (offsets, gather_order,
+# exists, rest, stiffness), the same types in every System, so each compiles once per model
+# (fem None or not), not once per System type (wind, self-collision, ...).
+
+
 @njit(cache=True, nogil=True)
-def prepare_jacobian(x, s, fem, unit, alpha):
+def prepare_jacobian(x, fem, springs, unit, alpha):
     """Linearise the elastic forces at x: the classic springs store their per-spring data in
     (unit, alpha) (see spring_jacobian); the FEM needs nothing beyond x."""
     if fem is None:
-        spring_jacobian(x, s.offsets, s.exists, s.rest, s.stiffness, unit, alpha)
+        offsets, _, exists, rest, stiffness = springs
+        spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
 
 
 @njit(cache=True, nogil=True)
-def jacobian_product(x, y, s, fem, unit, alpha, buffer, out):
+def jacobian_product(x, y, fem, springs, unit, alpha, buffer, out):
     """out = K y, K the elastic force Jacobian at x (negative semi-definite: compressed
     springs, or the FEM's filtered Hessian)."""
     if fem is None:
-        spring_jacobian_product(y, s.offsets, s.gather_order, s.stiffness, unit, alpha, buffer,
-                                out)
+        offsets, order, _, _, stiffness = springs
+        spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out)
     else:
         fem_filtered_jacobian_product(x, fem, y, out)
 
 
 @njit(cache=True, nogil=True)
-def jacobian_diagonal(x, s, fem, unit, alpha, out):
+def jacobian_diagonal(x, fem, springs, unit, alpha, out):
     """out = the diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner."""
     if fem is None:
-        spring_jacobian_diagonal(s.offsets, s.stiffness, unit, alpha, out)
+        offsets, _, _, _, stiffness = springs
+        spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out)
     else:
         fem_jacobian_diagonal(x, fem, out)

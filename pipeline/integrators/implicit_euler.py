@@ -59,36 +59,35 @@ def _dot(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _apply(x, y, out, s, unit, alpha, buffer, mass_factor, h2):
+def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2):
     """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x); mass_factor is
     1 + h gamma."""
-    jacobian_product(x, y, s, s.fem, unit, alpha, buffer, out)
+    jacobian_product(x, y, fem, springs, unit, alpha, buffer, out)
     for ax in range(3):
         for p in range(y.shape[1]):
-            out[ax, p] = (0.0 if s.pinned[p] else
-                          mass_factor * s.mass[p] * y[ax, p] - h2 * out[ax, p])
+            out[ax, p] = (0.0 if pinned[p] else
+                          mass_factor * mass[p] * y[ax, p] - h2 * out[ax, p])
 
 
 @njit(cache=True, nogil=True)
-def solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma):
-    """dv of one linearised backward-Euler step from time t (in work[1]); returns CG
-    iterations."""
-    h = s.dt
+def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma):
+    """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
+    at its start; returns CG iterations. It takes the System's fields (`springs`: see
+    forces.prepare_jacobian), so it compiles once per model, not per System type."""
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
-    total_force(x, v, t, s, force)
-    prepare_jacobian(x, s, s.fem, unit, alpha)
-    jacobian_product(x, v, s, s.fem, unit, alpha, buffer, q)
-    jacobian_diagonal(x, s, s.fem, unit, alpha, diag)
+    prepare_jacobian(x, fem, springs, unit, alpha)
+    jacobian_product(x, v, fem, springs, unit, alpha, buffer, q)
+    jacobian_diagonal(x, fem, springs, unit, alpha, diag)
     mass_factor = 1.0 + h * gamma
     for ax in range(3):
         for p in range(n):
-            if s.pinned[p]:
+            if pinned[p]:
                 b[ax, p] = 0.0
             else:
-                b[ax, p] = h * (force[ax, p] - gamma * s.mass[p] * v[ax, p] + h * q[ax, p])
-            diag[ax, p] = mass_factor * s.mass[p] + h2 * diag[ax, p]
+                b[ax, p] = h * (force[ax, p] - gamma * mass[p] * v[ax, p] + h * q[ax, p])
+            diag[ax, p] = mass_factor * mass[p] + h2 * diag[ax, p]
             dv[ax, p] = 0.0
             r[ax, p] = b[ax, p]
             z[ax, p] = r[ax, p] / diag[ax, p]
@@ -97,7 +96,7 @@ def solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma):
     rz = _dot(r, z)
     iterations = 0
     while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
-        _apply(x, d, q, s, unit, alpha, buffer, mass_factor, h2)
+        _apply(x, d, q, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2)
         dq = _dot(d, q)
         if not dq > 0.0:
             break
@@ -136,10 +135,13 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
             first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
+    springs = (s.offsets, s.gather_order, s.exists, s.rest, s.stiffness)
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * s.dt
-        iterations[0] += solve_step(s, x, v, t, force, unit, alpha, buffer, work, gamma)
+        total_force(x, v, t, s, force)
+        iterations[0] += solve_step(x, v, force, s.dt, s.pinned, s.mass, s.fem, springs, unit,
+                                    alpha, buffer, work, gamma)
         _update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
