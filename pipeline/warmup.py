@@ -194,7 +194,8 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     kernels = bar(len(jobs) + int(step) + int(render_cold), "compile", "kernel", progress, 0)
     try:
         if two_processes:
-            _in_two_processes(sim, here, helper, render if render_cold else None, kernels)
+            _in_two_processes(sim, here, helper, step, render if render_cold else None,
+                              kernels)
         else:
             for job in jobs:
                 job.compile()
@@ -210,9 +211,11 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     return time.perf_counter() - start
 
 
-def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob | None,
-                      kernels) -> None:
-    """Both shares at once; the helper reports each kernel it finishes on its stdout."""
+def _in_two_processes(sim, here: list[Job], helper: list[Job], step: bool,
+                      render: RenderJob | None, kernels) -> None:
+    """Both shares at once; the helper reports each kernel it finishes on its stdout. This
+    process compiles the stepping kernel last (if `step`: not cached), once the helper's
+    simulation kernels it calls are cached."""
     payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
     # Run from the folder holding this package: `-m` puts the working folder first on the
     # path, and a checkout there (a user's clone beside the installed package) would be
@@ -244,8 +247,9 @@ def _in_two_processes(sim, here: list[Job], helper: list[Job], render: RenderJob
             job.compile()
             kernels.update(1)
         simulation_ready.wait()
-        sim.compile_kernels()
-        kernels.update(1)
+        if step:
+            sim.compile_kernels()
+            kernels.update(1)
         proc.wait()
         reader.join()
     except BaseException:

@@ -3,11 +3,15 @@ render and its compile helper together, the output is the same as a warm run's, 
 next run finds every kernel cached."""
 from __future__ import annotations
 
+import io
 import json
 import re
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
+
+import pytest
 
 from conftest import cloth_dict, scene_dict
 
@@ -81,3 +85,55 @@ def test_split_balances_the_two_processes():
     # one small kernel and nothing else: compiled here
     assert warmup.split([warmup.Job("pipeline.system:energy_guard", ())], False, False) == (
         [warmup.Job("pipeline.system:energy_guard", ())], [], False)
+
+
+class _Counted:
+    """A stand-in for the progress bar: its total and the updates it got."""
+
+    def __init__(self, total, *args):
+        self.total, self.done = total, 0
+
+    def update(self, n):
+        self.done += n
+
+    def close(self):
+        pass
+
+
+class _Job(warmup.Job):
+    def cached(self):
+        return False
+
+    def compile(self):
+        pass
+
+
+class _Helper:
+    """A stand-in for the compile helper's process: it reports one kernel, then the end of
+    its simulation share."""
+
+    def __init__(self, *args, **kwargs):
+        self.stdin = io.BytesIO()
+        self.stdout = io.BytesIO(b"b\n" + warmup.SIMULATION_DONE + b"\n")
+
+    def wait(self):
+        return 0
+
+    def kill(self):
+        pass
+
+
+@pytest.mark.parametrize("step", [False, True])
+def test_the_bar_counts_each_kernel_compiled_once(monkeypatch, step):
+    """The bar's total is what gets compiled: in two processes too, the stepping kernel
+    counts only when it is not cached (it was always counted: the bar overshot)."""
+    bars, stepped = [], []
+    monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
+    monkeypatch.setattr(warmup, "sim_jobs", lambda system: [_Job("a", ()), _Job("b", ())])
+    monkeypatch.setattr(warmup, "_stepping_cached", lambda sim: not step)
+    monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs[:1], jobs[1:], True))
+    monkeypatch.setattr(warmup.subprocess, "Popen", _Helper)
+    sim = SimpleNamespace(system=None, compile_kernels=lambda: stepped.append(1))
+    warmup.warm_up(sim, None)
+    assert bars[0].total == 2 + step and bars[0].done == bars[0].total
+    assert len(stepped) == step
