@@ -155,11 +155,11 @@ def _gravity(mass, gravity, f):
 
 
 @njit(cache=True, nogil=True)
-def external_force(x, v, t, s, f):
+def external_force(x, v, t, mass, gravity, wind, f):
     """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
     treats the springs as constraints)."""
-    _gravity(s.mass, s.gravity, f)
-    add_other_forces(x, v, t, s.wind, f)
+    _gravity(mass, gravity, f)
+    add_other_forces(x, v, t, wind, f)
 
 
 @njit(cache=True, nogil=True, inline="always")

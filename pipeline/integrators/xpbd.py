@@ -49,17 +49,18 @@ class State(VelocityState):
 
 
 @njit(cache=True, nogil=True)
-def _solve(x, lam, s, dt2, iterations):
+def _solve(x, lam, pinned, mass, springs, dt2, iterations):
+    offsets, _, exists, rest, stiffness = springs
     n = x.shape[1]
     for _ in range(iterations):
         for p in range(n):
-            wp = 0.0 if s.pinned[p] else 1.0 / s.mass[p]
+            wp = 0.0 if pinned[p] else 1.0 / mass[p]
             for d in range(6):
-                k = s.stiffness[d]
-                q = p + s.offsets[d]
-                if k == 0.0 or q < 0 or not s.exists[d, p]:
+                k = stiffness[d]
+                q = p + offsets[d]
+                if k == 0.0 or q < 0 or not exists[d, p]:
                     continue
-                wq = 0.0 if s.pinned[q] else 1.0 / s.mass[q]
+                wq = 0.0 if pinned[q] else 1.0 / mass[q]
                 if wp + wq == 0.0:
                     continue
                 dx = x[0, q] - x[0, p]
@@ -69,7 +70,7 @@ def _solve(x, lam, s, dt2, iterations):
                 if not length > 0.0:
                     continue
                 compliance = 1.0 / (k * dt2)
-                dl = (-(length - s.rest[d, p]) - compliance * lam[d, p]) / (wp + wq + compliance)
+                dl = (-(length - rest[d, p]) - compliance * lam[d, p]) / (wp + wq + compliance)
                 lam[d, p] += dl
                 ux, uy, uz = dx / length, dy / length, dz / length
                 # grad_p C = -u, grad_q C = u
@@ -82,16 +83,19 @@ def _solve(x, lam, s, dt2, iterations):
 
 
 @njit(cache=True, nogil=True)
-def _solve_constraints(x, lam, s, fem, dt2, iterations):
+def _solve_constraints(x, lam, pinned, mass, springs, fem, dt2, iterations):
+    """The constraints' projections: the springs' (`springs` as in forces.prepare_jacobian)
+    or the FEM's. They take the System's fields, not the System: one compile per model, not
+    per System type."""
     if fem is None:  # numba prunes the branch not taken: classic scenes get only _solve
-        _solve(x, lam, s, dt2, iterations)
+        _solve(x, lam, pinned, mass, springs, dt2, iterations)
     else:
-        _solve_fem(x, lam, s, fem, dt2, iterations)
+        _solve_fem(x, lam, pinned, mass, fem, dt2, iterations)
 
 
 @njit(cache=True, nogil=True)
-def _inverse_mass(s, p):
-    return 0.0 if s.pinned[p] else 1.0 / s.mass[p]
+def _inverse_mass(pinned, mass, p):
+    return 0.0 if pinned[p] else 1.0 / mass[p]
 
 
 @njit(cache=True, nogil=True)
@@ -122,7 +126,7 @@ def _project(x, lam, row, p, c, compliance, p0, p1, p2, w0, w1, w2, g0, g1, g2):
 
 
 @njit(cache=True, nogil=True)
-def _triangle(x, lam, s, fem, t, p, dt2):
+def _triangle(x, lam, pinned, mass, fem, t, p, dt2):
     """The stretch and shear constraints of the triangle of kind t anchored at p."""
     area = fem.tri_area[t, p]
     if not area > 0.0:
@@ -130,7 +134,7 @@ def _triangle(x, lam, s, fem, t, p, dt2):
     p0 = p + fem.offsets[TRIANGLE_VERTICES[t, 0]]
     p1 = p + fem.offsets[TRIANGLE_VERTICES[t, 1]]
     p2 = p + fem.offsets[TRIANGLE_VERTICES[t, 2]]
-    w0, w1, w2 = _inverse_mass(s, p0), _inverse_mass(s, p1), _inverse_mass(s, p2)
+    w0, w1, w2 = _inverse_mass(pinned, mass, p0), _inverse_mass(pinned, mass, p1), _inverse_mass(pinned, mass, p2)
     i00, i01 = fem.tri_inv[t, 0, p], fem.tri_inv[t, 1, p]
     i10, i11 = fem.tri_inv[t, 2, p], fem.tri_inv[t, 3, p]
     # stretch: C = |w| - 1, dC/dw = w / |w|; w_u = i00 e1 + i10 e2, w_v = i01 e1 + i11 e2
@@ -160,7 +164,7 @@ def _triangle(x, lam, s, fem, t, p, dt2):
 
 
 @njit(cache=True, nogil=True)
-def _bend(x, lam, s, fem, k, p, dt2):
+def _bend(x, lam, pinned, mass, fem, k, p, dt2):
     """The bending constraint C = theta of the hinge of kind k anchored at p."""
     factor = fem.edge_factor[k, p]
     if not factor > 0.0:
@@ -174,8 +178,8 @@ def _bend(x, lam, s, fem, k, p, dt2):
     if not ok:
         return
     ga, gb, gc, gd = _hinge_gradient(length, _scale(n1, inv1), _scale(n2, inv2), t1, t2)
-    wa, wb = _inverse_mass(s, pa), _inverse_mass(s, pb)
-    wc, wd = _inverse_mass(s, pc), _inverse_mass(s, pd)
+    wa, wb = _inverse_mass(pinned, mass, pa), _inverse_mass(pinned, mass, pb)
+    wc, wd = _inverse_mass(pinned, mass, pc), _inverse_mass(pinned, mass, pd)
     wsum = wa * _dot(ga, ga) + wb * _dot(gb, gb) + wc * _dot(gc, gc) + wd * _dot(gd, gd)
     if not wsum > 0.0:
         return
@@ -190,17 +194,17 @@ def _bend(x, lam, s, fem, k, p, dt2):
 
 
 @njit(cache=True, nogil=True)
-def _solve_fem(x, lam, s, fem, dt2, iterations):
+def _solve_fem(x, lam, pinned, mass, fem, dt2, iterations):
     """Gauss-Seidel sweeps over the FEM constraints: triangles, then hinges, anchor order."""
     n = x.shape[1]
     for _ in range(iterations):
         for p in range(n):
             for t in range(TRIANGLE_KINDS):
-                _triangle(x, lam, s, fem, t, p, dt2)
+                _triangle(x, lam, pinned, mass, fem, t, p, dt2)
         if fem.k_bend > 0.0:
             for p in range(n):
                 for k in range(HINGE_KINDS):
-                    _bend(x, lam, s, fem, k, p, dt2)
+                    _bend(x, lam, pinned, mass, fem, k, p, dt2)
 
 
 @njit(cache=True, nogil=True)
@@ -208,11 +212,12 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     h = s.dt
     keep = 1.0 - s.damping
+    springs = (s.offsets, s.gather_order, s.exists, s.rest, s.stiffness)
     n = x.shape[1]
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * h
-        external_force(x, v, t, s, force)
+        external_force(x, v, t, s.mass, s.gravity, s.wind, force)
         for p in range(n):
             for a in range(3):
                 last[a, p] = x[a, p]
@@ -220,7 +225,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
                     v[a, p] = keep * v[a, p] + h * (force[a, p] / s.mass[p])
                     x[a, p] += h * v[a, p]
         lam[:] = 0.0
-        _solve_constraints(x, lam, s, s.fem, h * h, iterations)
+        _solve_constraints(x, lam, s.pinned, s.mass, springs, s.fem, h * h, iterations)
         position_passes(x, last, s, t)
         for p in range(n):
             if not s.pinned[p]:
