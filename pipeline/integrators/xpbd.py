@@ -134,7 +134,9 @@ def _triangle(x, lam, pinned, mass, fem, t, p, dt2):
     p0 = p + fem.offsets[TRIANGLE_VERTICES[t, 0]]
     p1 = p + fem.offsets[TRIANGLE_VERTICES[t, 1]]
     p2 = p + fem.offsets[TRIANGLE_VERTICES[t, 2]]
-    w0, w1, w2 = _inverse_mass(pinned, mass, p0), _inverse_mass(pinned, mass, p1), _inverse_mass(pinned, mass, p2)
+    w0 = _inverse_mass(pinned, mass, p0)
+    w1 = _inverse_mass(pinned, mass, p1)
+    w2 = _inverse_mass(pinned, mass, p2)
     i00, i01 = fem.tri_inv[t, 0, p], fem.tri_inv[t, 1, p]
     i10, i11 = fem.tri_inv[t, 2, p], fem.tri_inv[t, 3, p]
     # stretch: C = |w| - 1, dC/dw = w / |w|; w_u = i00 e1 + i10 e2, w_v = i01 e1 + i11 e2
