@@ -54,9 +54,6 @@ def process_alive(pid: int) -> bool:
     return stat[stat.rindex(")") + 2:].split()[0] != "Z"
 
 
-ROOT = Path(__file__).resolve().parents[1]
-
-
 def child_env(**extra: str) -> dict:
     """os.environ for a child Python that imports the clothpipe these tests import (the
     installed package, or the tree when pytest found that), not a copy in its working
@@ -75,6 +72,9 @@ def child_env(**extra: str) -> dict:
             [home] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
     env.update(extra)
     return env
+
+
+ROOT = Path(__file__).resolve().parents[1]
 SCENES = ROOT / "scenes"
 
 #: The five scenes of the course (scene files kept unchanged in scenes/).
