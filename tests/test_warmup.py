@@ -17,15 +17,17 @@ from conftest import cloth_dict, scene_dict
 
 from pipeline import warmup
 
-ROOT = Path(__file__).resolve().parents[1]
+#: the folder holding the package these tests import
+HOME = Path(warmup.__file__).resolve().parents[1]
 SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
 
 
 def _render(scene: Path, out: Path, cache: Path, cwd: Path) -> str:
-    """`render` as an installed command runs it: the package from ROOT, started in `cwd`."""
+    """`render` as an installed command runs it: the package these tests import (installed,
+    or the tree), started in `cwd`."""
     env = {"PATH": "/usr/bin:/bin", "NUMBA_CACHE_DIR": str(cache)}
-    code = f"import sys; sys.path.insert(0, {str(ROOT)!r}); from pipeline.cli import main; " \
+    code = f"import sys; sys.path.insert(0, {str(HOME)!r}); from pipeline.cli import main; " \
            "sys.exit(main())"
     r = subprocess.run([sys.executable, "-c", code, str(scene), "--out", str(out),
                         "--size", "24x24", "--duration", "0.2"], env=env, cwd=cwd,
