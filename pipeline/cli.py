@@ -487,10 +487,13 @@ def run(args, err: _Errors, source=None) -> int:
                                     framing, t_wall)
             from .frames import render_frame, scene_meshes
             from .simulation import Simulation
+            from .warmup import CompileWatch
 
-            sim = Simulation(scene, shot_seconds=plan.shot_seconds)
+            show = progress_enabled(args.quiet)
+            with CompileWatch(err.say if show else None, show) as early:
+                sim = Simulation(scene, shot_seconds=plan.shot_seconds)
             return _execute(args, err, scene, plan, sim, writers, golden,
-                            render_frame, scene_meshes, framing, t_wall)
+                            render_frame, scene_meshes, framing, t_wall, early)
         except BaseException:
             for writer in writers.values():
                 writer.abort()
@@ -498,7 +501,9 @@ def run(args, err: _Errors, source=None) -> int:
 
 
 def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_meshes,
-             framing, t_wall) -> int:
+             framing, t_wall, early) -> int:
+    """The render of `run` once the Simulation is built (`early`: the CompileWatch of its
+    building)."""
     from .warmup import RenderJob, warm_up
 
     timers = _Timers()
@@ -518,9 +523,9 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     show = progress_enabled(args.quiet)
     # A first run on this machine compiles the kernels, in two processes when it can.
-    timers.compile = warm_up(sim, RenderJob(scene, model, plan.shader, plan.aa)
-                             if plan.kind else None, say=err.say if show else None,
-                             progress=show)
+    timers.compile = early.seconds + warm_up(
+        sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
+        say=err.say if show else None, progress=show, announced=early.said)
     # Render the initial state before simulating: a missing texture or a broken shader
     # fails now, not after the simulation (a framed shot's camera is known only after it:
     # a small frame then).

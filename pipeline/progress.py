@@ -50,3 +50,13 @@ def bar(total: int, desc: str, unit: str, enabled: bool, position: int = 0):
                      file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
                      bar_format="{desc:<9} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} "
                                 "[{elapsed}<{remaining}, {rate_fmt}]"))
+
+
+def counter(desc: str, unit: str, enabled: bool):
+    """A tqdm count with no known total (items done and time elapsed), or a no-op bar."""
+    if not enabled:
+        return _NullBar()
+    from tqdm import tqdm
+
+    return _Bar(tqdm(desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True,
+                     bar_format="{desc:<9} {n_fmt} {unit}s [{elapsed}]"))

@@ -29,7 +29,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from .progress import bar
+from .progress import bar, counter
 
 # The simulation's kernels with their cold compile CPU times in seconds (the README's first
 # command, 2026-11-24, one after the other in one process). They split the kernels between
@@ -172,12 +172,72 @@ def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: boo
     return mine + theirs + stepping + rendering
 
 
+FIRST_RUN = "compiling kernels for this machine (first run only{})"
+
+
+class CompileWatch:
+    """Numba compiling in this process before the warm-up can start: a FEM cloth's
+    stability limit and a mesh collider's distance grid are computed while the Simulation
+    is built, and a first run compiles their kernels there (about 16 s for the FEM's
+    element passes, 2026-11-24). Inside `with`, the first compile says the first-run
+    message (`say`), `progress` counts the kernels compiled on stderr, and `seconds` sums
+    the time spent compiling, for the summary."""
+
+    def __init__(self, say: Callable[[str], None] | None = None, progress: bool = False):
+        self.say, self.progress = say, progress
+        self.seconds = 0.0
+        self.said = False
+        self._kernels = None
+        self._depth = 0
+        self._start = 0.0
+
+    def __enter__(self) -> CompileWatch:
+        from numba.core import event
+
+        watch = self
+
+        class Listener(event.Listener):  # numba calls it in the compiling thread
+            def on_start(self, ev) -> None:
+                watch._begin()
+
+            def on_end(self, ev) -> None:
+                watch._end()
+
+        self._listener = Listener()
+        event.register("numba:compile", self._listener)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        from numba.core import event
+
+        event.unregister("numba:compile", self._listener)
+        if self._kernels is not None:
+            self._kernels.close()
+
+    def _begin(self) -> None:
+        if self._depth == 0:
+            if not self.said:
+                self.said = True
+                if self.say is not None:
+                    self.say(FIRST_RUN.format(""))
+                self._kernels = counter("compile", "kernel", self.progress)
+            self._start = time.perf_counter()
+        self._depth += 1
+
+    def _end(self) -> None:
+        self._depth -= 1
+        self._kernels.update(1)
+        if self._depth == 0:
+            self.seconds += time.perf_counter() - self._start
+
+
 def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = None,
-            progress: bool = False) -> float:
+            progress: bool = False, announced: bool = False) -> float:
     """Compile what the scene's simulation (and `render`, if given) need and numba has not
-    cached, in two processes when both sides need it. `say` gets the first-run message;
-    `progress` shows a bar of the kernels compiled on stderr. Returns the seconds spent
-    compiling (0.0 when everything was cached)."""
+    cached, in two processes when both sides need it. `say` gets the first-run message
+    (`announced`: a CompileWatch said it already); `progress` shows a bar of the kernels
+    compiled on stderr. Returns the seconds spent compiling (0.0 when everything was
+    cached)."""
     start = time.perf_counter()
     try:
         jobs = [j for j in sim_jobs(sim.system) if not j.cached()]
@@ -190,7 +250,8 @@ def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = N
     here, helper, two_processes = split(jobs, render_cold, step)
     if say is not None:
         seconds = estimate_seconds(here, helper, render_cold, step, two_processes)
-        say(f"compiling kernels for this machine (first run only, about {seconds:.0f} s)")
+        say(f"compiling the other kernels (about {seconds:.0f} s)" if announced
+            else FIRST_RUN.format(f", about {seconds:.0f} s"))
     kernels = bar(len(jobs) + int(step) + int(render_cold), "compile", "kernel", progress, 0)
     try:
         if two_processes:

@@ -139,3 +139,30 @@ def test_the_bar_counts_each_kernel_compiled_once(monkeypatch, step):
     warmup.warm_up(sim, None)
     assert bars[0].total == 2 + step and bars[0].done == bars[0].total
     assert len(stepped) == step
+
+
+def test_compiles_before_the_warm_up_are_said_counted_and_timed(monkeypatch):
+    """A compile while the Simulation is built (a FEM cloth's stability limit) says the
+    first-run message once, counts each kernel (callee included) and is timed; kernels
+    already compiled say and count nothing."""
+    from numba import njit
+
+    @njit  # not cached: compiled in this test whatever numba's cache holds
+    def inner(a):
+        return a * 2.0
+
+    @njit
+    def outer(a):
+        return inner(a) + 1.0
+
+    said = []
+    counted = _Counted(None)
+    monkeypatch.setattr(warmup, "counter", lambda *a: counted)
+    with warmup.CompileWatch(said.append, True) as watch:
+        assert outer(1.0) == 3.0
+    assert said == [warmup.FIRST_RUN.format("")]
+    assert watch.said and watch.seconds > 0.0
+    assert counted.done == 2  # outer, and inner compiled while typing it
+    with warmup.CompileWatch(said.append, True) as again:
+        assert outer(2.0) == 5.0
+    assert len(said) == 1 and not again.said and again.seconds == 0.0
