@@ -42,6 +42,33 @@ def one_thread():
     numba.set_num_threads(before)
 
 
+# --- the benchmark itself (first: it compiles every integrator for both models, which the
+# FEM tests of another file then load from numba's cache instead of compiling beside it) ---
+
+def test_bench_writes_charts_and_csv(tmp_path):
+    pytest.importorskip("matplotlib")
+    from pipeline.bench import AUTO_TOLERANCES, main
+
+    out = tmp_path / "bench"
+    assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
+                 "--stability-grid", "6", "--time", "0.1", "--sweep", "8,30",
+                 "--ks", "1e4", "--stretch", "300"]) == 0
+    for stem in ("pinned2_work_precision", "pinned2_stability"):
+        for ext in ("png", "svg", "csv"):
+            assert (out / f"{stem}.{ext}").stat().st_size > 0
+    # both models by default (tests/test_bench.py covers the FEM path), every integrator
+    fem = len(INTEGRATORS)
+    auto = len(AUTO_TOLERANCES)  # fidelity auto: one point per tolerance and model
+    rows = (out / "pinned2_work_precision.csv").read_text().splitlines()
+    assert len(rows) == 1 + 2 * len(INTEGRATORS) + 2 * fem + 2 * auto
+    assert rows[0].startswith("model,integrator,")
+    assert sum(r.startswith("classic,xpbd,") for r in rows) == 2
+    assert sum(r.startswith("classic,auto,") for r in rows) == auto
+    assert sum(r.startswith("fem,") for r in rows) == 2 * fem + auto
+    stab = (out / "pinned2_stability.csv").read_text().splitlines()
+    assert len(stab) == 1 + len(INTEGRATORS) + fem
+
+
 def test_every_integrator_has_a_module_behind_the_same_interface():
     assert set(EXPECTED_ORDER) == set(INTEGRATORS)
     for name in INTEGRATORS:
@@ -219,29 +246,3 @@ def test_course_sphere_scene_without_penetration(name):
         depth = sphere.radius - np.linalg.norm(sim.positions - origin, axis=1)
         assert depth.max() <= sagitta, depth.max()
     assert np.abs(depth).min() < 1e-3  # it does lie on the sphere
-
-
-# --- the benchmark itself ---------------------------------------------------------------------
-
-def test_bench_writes_charts_and_csv(tmp_path):
-    pytest.importorskip("matplotlib")
-    from pipeline.bench import AUTO_TOLERANCES, main
-
-    out = tmp_path / "bench"
-    assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
-                 "--stability-grid", "6", "--time", "0.1", "--sweep", "8,30",
-                 "--ks", "1e4", "--stretch", "300"]) == 0
-    for stem in ("pinned2_work_precision", "pinned2_stability"):
-        for ext in ("png", "svg", "csv"):
-            assert (out / f"{stem}.{ext}").stat().st_size > 0
-    # both models by default (tests/test_bench.py covers the FEM path), every integrator
-    fem = len(INTEGRATORS)
-    auto = len(AUTO_TOLERANCES)  # fidelity auto: one point per tolerance and model
-    rows = (out / "pinned2_work_precision.csv").read_text().splitlines()
-    assert len(rows) == 1 + 2 * len(INTEGRATORS) + 2 * fem + 2 * auto
-    assert rows[0].startswith("model,integrator,")
-    assert sum(r.startswith("classic,xpbd,") for r in rows) == 2
-    assert sum(r.startswith("classic,auto,") for r in rows) == auto
-    assert sum(r.startswith("fem,") for r in rows) == 2 * fem + auto
-    stab = (out / "pinned2_stability.csv").read_text().splitlines()
-    assert len(stab) == 1 + len(INTEGRATORS) + fem
