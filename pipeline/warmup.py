@@ -173,6 +173,7 @@ def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: boo
 
 
 FIRST_RUN = "compiling kernels for this machine (first run only{})"
+OURS = ("pipeline", "shading")  # the packages whose kernels CompileWatch counts
 
 
 class CompileWatch:
@@ -180,8 +181,8 @@ class CompileWatch:
     stability limit and a mesh collider's distance grid are computed while the Simulation
     is built, and a first run compiles their kernels there (about 16 s for the FEM's
     element passes, 2026-11-24). Inside `with`, the first compile says the first-run
-    message (`say`), `progress` counts the kernels compiled on stderr, and `seconds` sums
-    the time spent compiling, for the summary."""
+    message (`say`), `progress` counts our kernels compiled on stderr, and `seconds` sums
+    the time spent compiling (numba's library functions included), for the summary."""
 
     def __init__(self, say: Callable[[str], None] | None = None, progress: bool = False):
         self.say, self.progress = say, progress
@@ -201,7 +202,7 @@ class CompileWatch:
                 watch._begin()
 
             def on_end(self, ev) -> None:
-                watch._end()
+                watch._end(ev.data["dispatcher"].py_func.__module__.split(".")[0] in OURS)
 
         self._listener = Listener()
         event.register("numba:compile", self._listener)
@@ -224,9 +225,10 @@ class CompileWatch:
             self._start = time.perf_counter()
         self._depth += 1
 
-    def _end(self) -> None:
+    def _end(self, ours: bool) -> None:
         self._depth -= 1
-        self._kernels.update(1)
+        if ours:  # not numba's own library functions compiled along with them
+            self._kernels.update(1)
         if self._depth == 0:
             self.seconds += time.perf_counter() - self._start
 
