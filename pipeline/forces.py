@@ -295,9 +295,16 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
 # --- the elastic force Jacobian of either model, for implicit Euler ------------------------
 
 
-# They take the fields they read, not the System: `springs` is (offsets, gather_order,
-# exists, rest, stiffness), the same types in every System, so each compiles once per model
-# (fem None or not), not once per System type (wind, self-collision, ...).
+# They take the fields they read, not the System: `springs` (spring_fields) has the same
+# types in every System, so each compiles once per model (fem None or not), not once per
+# System type (wind, self-collision, ...).
+
+
+@njit(cache=True, nogil=True, inline="always")
+def spring_fields(s):
+    """The System's spring lattice as one argument: (offsets, gather_order, exists, rest,
+    stiffness), for kernels that take fields rather than the System."""
+    return s.offsets, s.gather_order, s.exists, s.rest, s.stiffness
 
 
 @njit(cache=True, nogil=True)

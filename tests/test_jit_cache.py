@@ -4,8 +4,11 @@ from __future__ import annotations
 
 import multiprocessing
 import pickle
+import subprocess
+import sys
 
 import pytest
+from conftest import child_env
 
 SAVES = 150
 
@@ -48,9 +51,6 @@ def test_concurrent_saves_keep_every_entry_and_its_own_data(tmp_path):
 
 
 def test_import_shading_does_not_import_numba():
-    import subprocess
-    import sys
-
     code = "import sys, pipeline, shading; print('numba' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
@@ -79,11 +79,6 @@ print(sum(len(k.stats.cache_misses) for k in kernels), sum(len(k.stats.cache_hit
 def test_new_process_loads_every_kernel_from_the_disk_cache():
     """Start-up: every numba kernel the renderer runs is cached on disk (no first-class
     function arguments), so a new process loads them all and compiles nothing."""
-    import subprocess
-    import sys
-
-    from conftest import child_env
-
     run = lambda: subprocess.run([sys.executable, "-c", _STARTUP], env=child_env(),  # noqa: E731
                                  check=True, capture_output=True, text=True).stdout.split()
     run()  # fills the cache if this is the first use

@@ -22,7 +22,7 @@ import numpy as np
 from shading.jit import njit, prange
 
 from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
-                      spring_force_buffer, total_force)
+                      spring_fields, spring_force_buffer, total_force)
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -73,7 +73,7 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
 def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
     at its start; returns CG iterations. It takes the System's fields (`springs`: see
-    forces.prepare_jacobian), so it compiles once per model, not per System type."""
+    forces.spring_fields), so it compiles once per model, not per System type."""
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
@@ -135,7 +135,7 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
             first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
-    springs = (s.offsets, s.gather_order, s.exists, s.rest, s.stiffness)
+    springs = spring_fields(s)
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * s.dt

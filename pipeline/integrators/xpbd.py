@@ -27,7 +27,7 @@ from shading.jit import njit
 
 from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)
-from ..forces import external_force
+from ..forces import external_force, spring_fields
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
 
@@ -54,13 +54,13 @@ def _solve(x, lam, pinned, mass, springs, dt2, iterations):
     n = x.shape[1]
     for _ in range(iterations):
         for p in range(n):
-            wp = 0.0 if pinned[p] else 1.0 / mass[p]
+            wp = _inverse_mass(pinned, mass, p)
             for d in range(6):
                 k = stiffness[d]
                 q = p + offsets[d]
                 if k == 0.0 or q < 0 or not exists[d, p]:
                     continue
-                wq = 0.0 if pinned[q] else 1.0 / mass[q]
+                wq = _inverse_mass(pinned, mass, q)
                 if wp + wq == 0.0:
                     continue
                 dx = x[0, q] - x[0, p]
@@ -84,7 +84,7 @@ def _solve(x, lam, pinned, mass, springs, dt2, iterations):
 
 @njit(cache=True, nogil=True)
 def _solve_constraints(x, lam, pinned, mass, springs, fem, dt2, iterations):
-    """The constraints' projections: the springs' (`springs` as in forces.prepare_jacobian)
+    """The constraints' projections: the springs' (`springs`: forces.spring_fields)
     or the FEM's. They take the System's fields, not the System: one compile per model, not
     per System type."""
     if fem is None:  # numba prunes the branch not taken: classic scenes get only _solve
@@ -214,7 +214,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     h = s.dt
     keep = 1.0 - s.damping
-    springs = (s.offsets, s.gather_order, s.exists, s.rest, s.stiffness)
+    springs = spring_fields(s)
     n = x.shape[1]
     kinetic = bound = 0.0
     for step in range(steps):
