@@ -141,7 +141,8 @@ def _bin(x, w, h, t, scratch):
             start[bucket_of[p] + 1] += 1
     for b in range(nbuckets):
         start[b + 1] += start[b]
-    fill[:nbuckets] = start[:nbuckets]
+    for b in range(nbuckets):  # not a slice copy: see rk4.advance
+        fill[b] = start[b]
     for p in range(n):
         b = bucket_of[p]
         if b >= 0:
