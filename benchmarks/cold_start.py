@@ -30,6 +30,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+#: the tree measured: PYTHONPATH's first entry, else this one. Children run in a scratch
+#: folder with it first on sys.path: run from ROOT, `python -m` and `-c` put the working
+#: folder ahead of PYTHONPATH and measured this tree whatever PYTHONPATH said.
+TREE = (os.environ.get("PYTHONPATH") or str(ROOT)).split(os.pathsep)[0]
 PHASE = re.compile(r"(compile|simulate|render|encode|total) ([\d.]+) s")
 INTEGRATORS = ("euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
 SHADERS = ("normal", "wireframe", "diffuse", "texture", "bump", "displacement", "mirror",
@@ -47,10 +51,11 @@ def cases() -> list[tuple[str, list[str]]]:
 
 
 def run(argv: list[str], cache: str, out: Path) -> dict[str, float]:
-    env = dict(os.environ, NUMBA_CACHE_DIR=cache)
+    env = dict(os.environ, NUMBA_CACHE_DIR=cache, PYTHONPATH=TREE)
+    argv = [str(ROOT / a) if a.startswith("scenes/") else a for a in argv]
     start = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "pipeline.cli", *argv, "--out", str(out)],
-                          cwd=ROOT, env=env, capture_output=True, text=True)
+                          cwd=out.parent, env=env, capture_output=True, text=True)
     wall = time.perf_counter() - start
     if proc.returncode != 0:
         raise SystemExit(f"render {' '.join(argv)} failed:\n{proc.stderr}")
@@ -64,7 +69,9 @@ def import_seconds(repeat: int = 3) -> float:
     best = float("inf")
     for _ in range(repeat):
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import pipeline, shading"], cwd=ROOT, check=True)
+        subprocess.run([sys.executable, "-c", "import pipeline, shading"],
+                       cwd=tempfile.gettempdir(), env=dict(os.environ, PYTHONPATH=TREE),
+                       check=True)
         best = min(best, time.perf_counter() - start)
     return best
 
@@ -75,7 +82,7 @@ def main() -> int:
     args = ap.parse_args()
     chosen = [c for c in cases() if not args.only or c[0] in args.only]
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, python "
-          f"{sys.version.split()[0]}; tree {os.environ.get('PYTHONPATH') or ROOT}")
+          f"{sys.version.split()[0]}; tree {TREE}")
     print(f"import pipeline, shading: {import_seconds():.2f} s (best of 3, fresh processes)")
     print(f"{'case':<17} {'':<5} {'wall':>6} {'compile':>8} {'simulate':>9} {'render':>7} "
           f"{'encode':>7}")
