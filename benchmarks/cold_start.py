@@ -30,9 +30,9 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-#: the tree measured: PYTHONPATH's first entry, else this one. Children run in a scratch
-#: folder with it first on sys.path: run from ROOT, `python -m` and `-c` put the working
-#: folder ahead of PYTHONPATH and measured this tree whatever PYTHONPATH said.
+#: the tree measured: PYTHONPATH's first entry, else this one. Children run in a fresh
+#: scratch folder with it first on sys.path: run from ROOT, `python -m` and `-c` put the
+#: working folder ahead of PYTHONPATH and measured this tree whatever PYTHONPATH said.
 TREE = (os.environ.get("PYTHONPATH") or str(ROOT)).split(os.pathsep)[0]
 PHASE = re.compile(r"(compile|simulate|render|encode|total) ([\d.]+) s")
 INTEGRATORS = ("euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
@@ -65,13 +65,12 @@ def run(argv: list[str], cache: str, out: Path) -> dict[str, float]:
     return phases
 
 
-def import_seconds(repeat: int = 3) -> float:
+def import_seconds(folder: str, repeat: int = 3) -> float:
     best = float("inf")
     for _ in range(repeat):
         start = time.perf_counter()
-        subprocess.run([sys.executable, "-c", "import pipeline, shading"],
-                       cwd=tempfile.gettempdir(), env=dict(os.environ, PYTHONPATH=TREE),
-                       check=True)
+        subprocess.run([sys.executable, "-c", "import pipeline, shading"], cwd=folder,
+                       env=dict(os.environ, PYTHONPATH=TREE), check=True)
         best = min(best, time.perf_counter() - start)
     return best
 
@@ -83,10 +82,11 @@ def main() -> int:
     chosen = [c for c in cases() if not args.only or c[0] in args.only]
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, python "
           f"{sys.version.split()[0]}; tree {TREE}")
-    print(f"import pipeline, shading: {import_seconds():.2f} s (best of 3, fresh processes)")
-    print(f"{'case':<17} {'':<5} {'wall':>6} {'compile':>8} {'simulate':>9} {'render':>7} "
-          f"{'encode':>7}")
     with tempfile.TemporaryDirectory(prefix="cold-start-") as tmp:
+        print(f"import pipeline, shading: {import_seconds(tmp):.2f} s (best of 3, fresh "
+              "processes)")
+        print(f"{'case':<17} {'':<5} {'wall':>6} {'compile':>8} {'simulate':>9} "
+              f"{'render':>7} {'encode':>7}")
         cache = os.path.join(tmp, "numba")
         for name, argv in chosen:
             for label in ("cold", "warm"):
