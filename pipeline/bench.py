@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .forces import elastic_energy, total_force
+from .forces import elastic_energy, total_force_now
 from .integrators import state_class
 from .model import DIRECTION_TYPE, build_model
 from .outputs import atomic_file
@@ -165,7 +165,7 @@ class Run:
             self.state.last[:] = self.state.x
         if integrator == "verlet" and not classic_start:
             force = np.zeros_like(self.state.x)
-            total_force(self.state.x, np.zeros_like(force), 0.0, system, force)
+            total_force_now(self.state.x, np.zeros_like(force), 0.0, system, force)
             free = system.pinned == 0
             h2 = system.dt * system.dt
             # x_-1 = x0 - v0 dt + a0 dt^2 / 2 with v0 = 0

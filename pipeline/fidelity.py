@@ -47,7 +47,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from .forces import total_force
+from .forces import total_force_now
 from .reach import arm, budget_for
 from .scene import Scene
 from .system import damping_at, drag_gamma
@@ -287,7 +287,7 @@ class AutoStepper:
     def _acceleration(self, system, t: float, v: np.ndarray) -> np.ndarray:
         state = self.sim._state
         force = np.zeros_like(state.x)
-        total_force(state.x, v, t, system, force)
+        total_force_now(state.x, v, t, system, force)
         a = force / system.mass
         a[:, system.pinned != 0] = 0.0
         return a

@@ -124,11 +124,27 @@ def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spr
 def total_force(x, v, t, s, f):
     """f[:] = every force on the points at positions x, velocities v (3, N), time t, for the
     System `s`: gravity and the cloth's internal forces (classic: in the course code's order
-    of summation), then wind. Inlined into the stepping kernels: compiled on its own, its
-    Python entry point (unboxing the System) costs a first run about 1 s."""
-    internal_forces(x, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
-                    s.mass, s.gravity, s.spring_force, f)
-    add_other_forces(x, v, t, s.wind, f)
+    of summation), then wind. For kernels (inlined into the stepping kernels); Python calls
+    `total_force_now`."""
+    forces_of(x, v, t, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
+              s.mass, s.gravity, s.spring_force, s.wind, f)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def forces_of(x, v, t, fem, offsets, order, exists, rest, stiffness, mass, gravity,
+              spring_force, wind, f):
+    """total_force from the System's fields: inlined in kernels; called from Python it
+    compiles once per model and wind (its entry point unboxes these fields; one taking the
+    System compiled again for every System type, 2-3 s each, and unboxed all of it)."""
+    internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
+                    spring_force, f)
+    add_other_forces(x, v, t, wind, f)
+
+
+def total_force_now(x: np.ndarray, v: np.ndarray, t: float, s, f: np.ndarray) -> None:
+    """total_force called from Python (the same fields as total_force passes)."""
+    forces_of(x, v, t, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
+              s.mass, s.gravity, s.spring_force, s.wind, f)
 
 
 # The kernels below take the System's fields, not the System (see system.py: one compile
