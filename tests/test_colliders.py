@@ -5,24 +5,20 @@ import math
 
 import numpy as np
 import pytest
-from numba import njit
 
 from conftest import cloth_dict, scene_dict
 from pipeline import Simulation, simulate
-from pipeline.colliders import collide_point, euler_matrix, pack_colliders, pose_at, update_poses
+from pipeline.colliders import collide_all, euler_matrix, pack_colliders, pose_at
 from pipeline.scene import Box, Keyframe, Plane, Sphere, load_scene
 
 
-@njit(cache=True)
-def _collide(table, p, last, t_start, t_end):
-    update_poses(table, t_start, t_end)
-    return collide_point(table.kinds, table.params, table.data, table.key_count, table.pivot,
-                         table.pose, table.active, p[0], p[1], p[2], last[0], last[1], last[2])
-
-
 def collide(colliders, p, last, t_start=0.0, t_end=0.0):
-    return np.array(_collide(pack_colliders(colliders), np.asarray(p, float),
-                             np.asarray(last, float), t_start, t_end))
+    """One point through the simulation's own collider pass (the kernel every scene has
+    compiled): where it ends for a step from `last` at t_start to t_end."""
+    x = np.asarray(p, float).reshape(3, 1).copy()
+    collide_all(x, np.asarray(last, float).reshape(3, 1).copy(), np.zeros(1, np.uint8),
+                pack_colliders(colliders), float(t_start), float(t_end))
+    return x[:, 0]
 
 
 def test_euler_matrix_is_rz_ry_rx():
