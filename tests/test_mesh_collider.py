@@ -222,8 +222,8 @@ def test_ray_parity_is_exact_through_edges_and_vertices():
     n, h = 9, 0.25
     origin = np.full(3, -1.0)
     counts = np.zeros((n, n, n), dtype=np.int32)
-    sdf._ray_crossings(np.asarray(box.vertices, float), np.asarray(box.faces, np.int64),
-                       origin, h, counts)
+    sdf._ray_crossings(sdf.read_only(np.asarray(box.vertices, float)),
+                       sdf.read_only(np.asarray(box.faces, np.int64)), origin, h, counts)
     inside = np.cumsum(counts, axis=2) % 2 == 1  # counts[k, j, i], x fastest
     z, y, x = np.meshgrid(*[origin[0] + h * np.arange(n)] * 3, indexing="ij")
     norm = np.maximum(np.maximum(np.abs(x), np.abs(y)), np.abs(z))
