@@ -89,8 +89,9 @@ def build_grid(vertices: np.ndarray, faces: np.ndarray, *, solid: bool, thicknes
 
 def read_only(a: np.ndarray) -> np.ndarray:
     """A read-only view of a: numba types a writable array apart from a read-only one, so
-    the grid's kernels take read-only meshes only and compile once whoever calls (a mesh
-    flipped to wind outward, or a caller's own arrays, compiled them again: 3.4 s)."""
+    the grid's kernels take read-only meshes only and compile once whoever calls (a
+    caller's writable arrays, or the writable copy of a mesh flipped to wind outward,
+    compiled them again: 3.4 s of CPU in the tests)."""
     view = a.view()
     view.flags.writeable = False
     return view
