@@ -19,6 +19,7 @@ walk over the spring list.
 from __future__ import annotations
 
 import numpy as np
+from numba.extending import register_jitable
 from shading.jit import njit, prange
 
 from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
@@ -126,25 +127,32 @@ def total_force(x, v, t, s, f):
     System `s`: gravity and the cloth's internal forces (classic: in the course code's order
     of summation), then wind. For kernels (inlined into the stepping kernels); Python calls
     `total_force_now`."""
-    forces_of(x, v, t, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
-              s.mass, s.gravity, s.spring_force, s.wind, f)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def forces_of(x, v, t, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-              spring_force, wind, f):
-    """total_force from the System's fields: inlined in kernels; called from Python it
-    compiles once per model and wind (its entry point unboxes these fields; one taking the
-    System compiled again for every System type, 2-3 s each, and unboxed all of it)."""
-    internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                    spring_force, f)
-    add_other_forces(x, v, t, wind, f)
+    forces_of(x, v, t, force_fields(s), f)
 
 
 def total_force_now(x: np.ndarray, v: np.ndarray, t: float, s, f: np.ndarray) -> None:
-    """total_force called from Python (the same fields as total_force passes)."""
-    forces_of(x, v, t, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness,
-              s.mass, s.gravity, s.spring_force, s.wind, f)
+    """total_force called from Python."""
+    forces_of(x, v, t, force_fields(s), f)
+
+
+@register_jitable(inline="always")
+def force_fields(s) -> tuple:
+    """The System's fields the forces read, as one argument of `forces_of` (plain Python
+    when Python calls it, inlined in kernels)."""
+    return (s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
+            s.gravity, s.spring_force, s.wind)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def forces_of(x, v, t, fields, f):
+    """total_force from the System's fields (force_fields): inlined in kernels; called from
+    Python it compiles once per model and wind (its entry point unboxes these fields; one
+    taking the System compiled again for every System type, 2-3 s each, and unboxed all of
+    it)."""
+    fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind = fields
+    internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
+                    spring_force, f)
+    add_other_forces(x, v, t, wind, f)
 
 
 # The kernels below take the System's fields, not the System (see system.py: one compile
