@@ -24,6 +24,13 @@ __all__ = ["STAGE", "njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
 
+# numba caches a kernel compiled while a parallel kernel it calls came from the cache without
+# the hook that starts numba's threads when the kernel is loaded (numba#8578, still in 0.68).
+# Loaded first in a later process, such a kernel crashes it: a segfault, or "LLVM ERROR:
+# Symbol not found: allocate_sched" (seen: scenes/flag.json with rk4 after swing with rk4
+# and flag with Verlet). Every run starts those threads anyway; start them before any kernel.
+numba.get_num_threads()
+
 # Options of the fragment stage (shading/shade.py) and of the helpers it calls rather than
 # inlines: cached, releases the GIL, no zero-division checks (numpy error model), and
 # floating-point contraction / reassociation / reciprocals (a few ulps; no assumptions

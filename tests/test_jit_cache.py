@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import multiprocessing
+import os
 import pickle
 import subprocess
 import sys
@@ -84,3 +85,40 @@ def test_new_process_loads_every_kernel_from_the_disk_cache():
     run()  # fills the cache if this is the first use
     misses, hits = (int(v) for v in run())
     assert misses == 0 and hits > 0
+
+
+_NESTED = """
+from shading.jit import njit, prange
+
+
+@njit(cache=True, parallel=True, nogil=True, no_cpython_wrapper=True)
+def parallel_add(x):
+    for i in prange(x.shape[0]):
+        x[i] += 1.0
+
+
+@njit(cache=True)
+def first(x):
+    parallel_add(x)
+
+
+@njit(cache=True)
+def second(x):
+    parallel_add(x)
+"""
+
+
+def test_a_kernel_compiled_over_a_cached_parallel_kernel_loads_in_a_new_process(tmp_path):
+    """numba#8578: `second`, compiled while `parallel_add` came from the cache, is cached
+    without the hook that starts numba's threads; a new process loading it first crashed
+    (segfault) until shading.jit started the threads on import. Each call a new process
+    on one cache, as three `render` runs are."""
+    (tmp_path / "nested_kernels.py").write_text(_NESTED)
+    env = child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env["PYTHONPATH"] = os.pathsep.join([str(tmp_path)] + [p for p in [env.get("PYTHONPATH")] if p])
+    for call in ("first", "second", "second"):
+        code = (f"import numpy as np, nested_kernels as k; x = np.zeros(4); k.{call}(x); "
+                "print(x.sum())")
+        run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                             env=env, cwd=tmp_path, timeout=300)
+        assert (run.returncode, run.stdout.strip()) == (0, "4.0"), (call, run.stderr[-500:])
