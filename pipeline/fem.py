@@ -45,7 +45,7 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 
 class FemParams(NamedTuple):
@@ -63,6 +63,7 @@ class FemParams(NamedTuple):
     edge_factor: np.ndarray  # (3, N) |e|^2 / (2 (A1 + A2)) of hinge kind k at p, 0 if none
     offsets: np.ndarray  # (6,) int64, index of A, B, C, D, E, F minus the anchor's
     scratch: np.ndarray  # (18, N) intermediate rows of the passes
+    band: KernelPointer | None = None  # _band for these params (build_fem); None inside it
 
 
 TRIANGLE_KINDS, HINGE_KINDS, SCRATCH_ROWS = 2, 3, 18
@@ -124,13 +125,21 @@ def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
         area1 = 0.5 * np.abs(e[0] * ca[1] - e[1] * ca[0])
         area2 = 0.5 * np.abs(da[0] * e[1] - da[1] * e[0])
         edge_factor[k, p] = (e[0] ** 2 + e[1] ** 2) / (2.0 * (area1 + area2))
-    return FemParams(
+    params = FemParams(
         nw=nw, nh=nh, width=float(width), height=float(height), k_stretch=float(k_stretch),
         k_shear=float(k_shear), k_bend=float(k_bend), density=float(density),
         x_rest=np.ascontiguousarray(np.vstack([uv, np.zeros(n)])),
         tri_area=tri_area, tri_inv=tri_inv, edge_factor=edge_factor, offsets=offsets,
         scratch=np.zeros((SCRATCH_ROWS, n)),
     )
+    return params._replace(band=KernelPointer(_band, band_args(params)))
+
+
+def band_args(params: FemParams) -> tuple:
+    """Arguments of the types _bands_of_parity passes to _band (positions, direction and
+    out are (3, N) float64 arrays; the params without their pointer; mode, band, bands)."""
+    x = params.x_rest
+    return x, x, params._replace(band=None), np.int64(0), np.int64(0), np.int64(2), x
 
 
 def lumped_masses(params: FemParams) -> np.ndarray:
@@ -572,7 +581,7 @@ def _hinges(x, y, params, k, mode, lo, hi, out):
         _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _band(x, y, params, mode, band, bands, out):
     """Add the elements anchored in cell rows [band * rows // bands, (band + 1) * rows //
     bands) to out (rows = nh - 1)."""
@@ -587,9 +596,12 @@ def _band(x, y, params, mode, band, bands, out):
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _bands_of_parity(x, y, params, mode, parity, bands, out):
-    """Add the elements of bands parity, parity + 2, ... to out, in parallel."""
+    """Add the elements of bands parity, parity + 2, ... to out, in parallel. _band is
+    called through params.band: linked in, it made this loop's compile the longest part of
+    a first FEM run (numba optimises a parallel loop's linked code four times)."""
+    band, elements = params.band, FemParams(*params[:-1], None)
     for b in prange(bands // 2):
-        _band(x, y, params, mode, 2 * b + parity, bands, out)
+        band(x, y, elements, mode, 2 * b + parity, bands, out)
 
 
 @njit(cache=True, nogil=True, inline="always")

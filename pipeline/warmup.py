@@ -32,16 +32,20 @@ import numpy as np
 from .progress import bar, counter
 
 # The simulation's kernels with their cold compile CPU times in seconds (the README's first
-# command, 2026-11-24, one after the other in one process). They split the kernels between
+# command, 2026-11-24, one after the other in one process; the kernels called through a
+# KernelPointer since 2026-11-25 share their callers' former time in the ratio measured then). They split the kernels between
 # this process and the helper (`split`) and give the estimate of the first-run message.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 7.1, "pipeline.forces:internal_forces": 4.4,
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.1,
+                   "pipeline.colliders:_collide_range": 5.0,
+                   "pipeline.forces:internal_forces": 4.4,
                    "pipeline.self_collision:self_collide": 5.0,
                    "pipeline.system:_classic_stretch_limit": 2.6,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.2,
-                   "pipeline.system:energy_guard": 0.2, "pipeline.wind:add_wind_force": 6.9}
+                   "pipeline.system:energy_guard": 0.2, "pipeline.wind:add_wind_force": 1.3,
+                   "pipeline.wind:_band": 2.9, "pipeline.fem:_band": 8.0}
 RENDER_SECONDS = 11.2  # every renderer kernel for one shader
 STEP_SECONDS = 3.3  # the integrator's stepping kernel (position passes and guard inlined)
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
@@ -59,15 +63,21 @@ class Job:
         module, function = self.name.split(":")
         return getattr(importlib.import_module(module), function)
 
+    def signature(self, disp) -> tuple:
+        """The argument types (an argument may be a numba type already)."""
+        from numba.core import types
+
+        return tuple(a if isinstance(a, types.Type) else disp.typeof_pyval(a) for a in self.args)
+
     def cached(self) -> bool:
         """Compiled in this process already, or in numba's disk cache for these types."""
         disp = self.dispatcher()
-        sig = tuple(disp.typeof_pyval(a) for a in self.args)
+        sig = self.signature(disp)
         return sig in disp.overloads or any(key[0] == sig for key in _cache_index(disp))
 
     def compile(self) -> None:
         disp = self.dispatcher()
-        disp.compile(tuple(disp.typeof_pyval(a) for a in self.args))
+        disp.compile(self.signature(disp))
 
 
 def _cache_index(disp) -> list[tuple]:
@@ -77,6 +87,13 @@ def _cache_index(disp) -> list[tuple]:
         return []
     magic = disp.targetctx.codegen().magic_tuple()
     return [key for key in cache._cache_file._load_index() if key[1] == magic]
+
+
+def kernel_pointers(system) -> list:
+    """The System's KernelPointers: the colliders' point range, the wind's and the FEM's
+    band kernels."""
+    return [system.colliders.range] + [p.band for p in (system.wind, system.fem)
+                                       if p is not None]
 
 
 def sim_jobs(system) -> list[Job]:
@@ -103,6 +120,11 @@ def sim_jobs(system) -> list[Job]:
         del args["pipeline.self_collision:self_collide"]
     if s.wind is None:  # pruned from the stepping kernel
         del args["pipeline.wind:add_wind_force"]
+    # kernels the others call through a pointer (shading.jit.KernelPointer): compiled on
+    # their own, not with their callers
+    for pointer in kernel_pointers(s):
+        disp = pointer.dispatcher
+        args[f"{disp.py_func.__module__}:{disp.py_func.__name__}"] = pointer.argtypes
     return [Job(n, args[n]) for n in sorted(args, key=COMPILE_SECONDS.get, reverse=True)]
 
 

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
 GUST_MODES = 8  # plane waves in the gust field
@@ -54,6 +54,7 @@ class WindParams(NamedTuple):
     phase: np.ndarray  # (GUST_MODES,) float32: phase now at the origin x[:, 0], in [0, 1)
     point: np.ndarray  # (bands, 6, (rows + 2) nw) float32: v - u, then x - x[:, 0]
     tri: np.ndarray  # (bands, 2, 3, (rows + 2) nw + 1) float32: per-vertex triangle forces
+    band: KernelPointer | None = None  # _band for these params (pack_wind); None inside it
 
 
 def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams | None:
@@ -73,11 +74,13 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams |
     amplitude *= 8.0 * wind.gust / np.sqrt(WAVE_MEAN_SQUARE * (amplitude**2).sum(axis=0))
     modes = np.vstack([wavevector.T, amplitude.T, phase0, frequency - wavevector @ velocity])
     rho = wind.air_density
-    return WindParams(
+    w = WindParams(
         wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
         rho * wind.lift / 108.0, modes, np.zeros(GUST_MODES, np.float32),
         np.zeros((bands, 6, (rows + 2) * nw), np.float32),
         np.zeros((bands, 2, 3, (rows + 2) * nw + 1), np.float32))
+    x = np.zeros((3, nw * nh))  # positions, velocities and forces: (3, N) float64
+    return w._replace(band=KernelPointer(_band, (x, x, w, x, np.int64(0))))
 
 
 def max_wind_speed(wind) -> float:
@@ -210,7 +213,7 @@ def _gather(tri, f, lo, hi, t0, nw):
             out[j] += below[j] + below_l[j] + below_l1[j] + above[j] + above1[j] + above1_l[j]
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _band(x, v, w, f, band):
     """The wind forces on the point rows of one band."""
     nw, nh, bands = w.nw, w.nh, w.point.shape[0]
@@ -239,19 +242,23 @@ def _band(x, v, w, f, band):
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _all_bands(x, v, w, f):
-    for band in prange(w.point.shape[0]):
-        _band(x, v, w, f, np.int64(band))  # as below: one compile of _band
+    band, bands = w.band, WindParams(*w[:-1], None)
+    for b in prange(w.point.shape[0]):
+        band(x, v, bands, f, np.int64(b))
 
 
 @njit(cache=True, nogil=True)
 def add_wind_force(x, v, t, w, f):
     """f += the aerodynamic force at positions x, velocities v (3, N), time t (s); nothing
-    when w is None (numba prunes the branch: no wind code is compiled for such a call)."""
+    when w is None (numba prunes the branch: no wind code is compiled for such a call).
+    _band is called through w.band (shading.jit.KernelPointer): linked in, numba optimised
+    its code again in this kernel, in the parallel loop (four times) and in every stepping
+    kernel."""
     if w is None:
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
     if w.point.shape[0] == 1:
-        _band(x, v, w, f, np.int64(0))  # no thread launch for a single band
+        w.band(x, v, WindParams(*w[:-1], None), f, np.int64(0))  # no thread launch for one band
     else:
         _all_bands(x, v, w, f)
 

@@ -18,9 +18,11 @@ import os
 
 import numba
 from numba import prange
-from numba.core import caching
+from numba.core import caching, types
+from numba.core.types.function_type import WrapperAddressProtocol
+from numba.experimental import function_type  # noqa: F401  (registers typeof for KernelPointer)
 
-__all__ = ["STAGE", "njit", "prange", "read_only"]
+__all__ = ["STAGE", "KernelPointer", "njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
 
@@ -57,6 +59,40 @@ def read_only(array):
     view = array.view()
     view.flags.writeable = False
     return view
+
+
+class KernelPointer(WrapperAddressProtocol):
+    """A compiled kernel handed to other kernels as data: numba types it as a first-class
+    function and its callers call it through its address.
+
+    numba links the code of every kernel a kernel calls into the caller's module and
+    optimises and generates that code again there (and a parallel loop does so four
+    times); a kernel called through a pointer is compiled once, on its own, and its callers
+    stay small. The kernel must not raise (numba's C wrapper cannot pass an exception on).
+    Pickles as the dispatcher and the argument types; the address is the kernel's for
+    those types in this process (compiled, or loaded from the cache, on first use).
+    """
+
+    def __init__(self, dispatcher, args: tuple):
+        self.dispatcher = dispatcher
+        self.argtypes = tuple(a if isinstance(a, types.Type) else dispatcher.typeof_pyval(a)
+                              for a in args)
+        self._signature = types.none(*self.argtypes)
+        self._address = None
+
+    def signature(self):
+        return self._signature
+
+    def __wrapper_address__(self) -> int:
+        if self._address is None:
+            self.dispatcher.compile(self.argtypes)
+            result = self.dispatcher.overloads[self.argtypes]
+            self._address = result.library.get_pointer_to_function(
+                result.fndesc.llvm_cfunc_wrapper_name)
+        return self._address
+
+    def __reduce__(self):
+        return KernelPointer, (self.dispatcher, self.argtypes)
 
 
 @contextlib.contextmanager

@@ -122,3 +122,49 @@ def test_a_kernel_compiled_over_a_cached_parallel_kernel_loads_in_a_new_process(
         run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                              env=env, cwd=tmp_path, timeout=300)
         assert (run.returncode, run.stdout.strip()) == (0, "4.0"), (call, run.stderr[-500:])
+
+
+_POINTER = """
+import pickle, sys
+import numpy as np
+from shading.jit import KernelPointer, njit, prange
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def add_range(x, k, lo, hi):
+    for i in range(lo, hi):
+        x[i] += k * i
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def add_all(x, k, kernel):
+    for c in prange(4):
+        kernel(x, k, c * x.shape[0] // 4, (c + 1) * x.shape[0] // 4)
+
+
+x = np.zeros(10)
+pointer = KernelPointer(add_range, (x, 0.5, np.int64(0), np.int64(0)))
+if sys.argv[1] == "pickled":
+    pointer = pickle.loads(pickle.dumps(pointer))
+add_all(x, 0.5, pointer)
+direct = np.zeros(10)
+add_range.py_func(direct, 0.5, 0, 10)
+print(np.array_equal(x, direct), sum(add_all.stats.cache_misses.values()),
+      sum(add_range.stats.cache_misses.values()), sum(add_all.stats.cache_hits.values()))
+"""
+
+
+def test_a_kernel_pointer_calls_the_kernel_and_both_load_from_the_cache(tmp_path):
+    """KernelPointer: the kernel called through it computes what Python computes; the
+    caller (typed by the pointer's signature) and the kernel are cached like any kernel, so
+    a new process compiles neither; a pickled pointer (sent to the compile helper) works."""
+    (tmp_path / "pointer_kernels.py").write_text(_POINTER)
+    env = child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    outputs = []
+    for how in ("plain", "pickled", "plain"):
+        run = subprocess.run([sys.executable, str(tmp_path / "pointer_kernels.py"), how],
+                             capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+        assert run.returncode == 0, run.stderr[-500:]
+        outputs.append(run.stdout.split())
+    assert outputs[0] == ["True", "1", "1", "0"]  # compiled both
+    assert outputs[1] == outputs[2] == ["True", "0", "0", "1"]  # loaded both

@@ -27,7 +27,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 from . import box, mesh, plane, sphere
 
@@ -68,6 +68,7 @@ class ColliderTable(NamedTuple):
     pivot: np.ndarray  # (C, 3)
     pose: np.ndarray  # (C, 2, POSE_WIDTH) scratch: poses at the start and the end of a step
     active: np.ndarray  # (C,) uint8: 0 = skipped while nothing can reach it (pipeline.reach)
+    range: KernelPointer | None = None  # _collide_range for this table; None inside it
 
 
 def euler_matrix(degrees: Sequence[float]) -> np.ndarray:
@@ -96,8 +97,11 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
         pivot[c] = obj.pivot
         for k, key in enumerate(obj.keyframes):
             keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
-    return ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
-                         np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
+    table = ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
+                          np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
+    x = np.zeros((3, 1))  # positions and positions a step earlier: (3, N) float64
+    return table._replace(range=KernelPointer(
+        _collide_range, (x, x, np.zeros(1, np.uint8), table, np.int64(0), np.int64(1))))
 
 
 def collider_pose(obj, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -246,12 +250,14 @@ def _collide_range(x, last, pinned, table, lo, hi):
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _collide_points(x, last, pinned, table):
-    # The parallel loop only calls _collide_range: numba copies a parallel loop's body
-    # several times while compiling it, so the colliders' inlined code stays out of it.
+    # The parallel loop only calls _collide_range, through table.range: numba copies a
+    # parallel loop's body several times while compiling it and optimises linked code again
+    # in every caller, so the colliders' inlined code is compiled once, on its own.
     n = x.shape[1]
+    collide, points = table.range, ColliderTable(*table[:-1], None)
     for chunk in prange(CHUNKS):
         c = np.int64(chunk)
-        _collide_range(x, last, pinned, table, (c * n) // CHUNKS, ((c + 1) * n) // CHUNKS)
+        collide(x, last, pinned, points, (c * n) // CHUNKS, ((c + 1) * n) // CHUNKS)
 
 
 @njit(cache=True, nogil=True)
