@@ -10,7 +10,8 @@ import math
 from typing import NamedTuple
 
 import numpy as np
-from numba.extending import register_jitable
+from numba.core import types
+from numba.extending import register_jitable, typeof_impl
 from shading.jit import njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
@@ -62,6 +63,30 @@ class System(NamedTuple):
     def self_collision(self) -> bool:
         """Whether the scene turns self-collision on (for Python; kernels test the scratch)."""
         return self.scratch is not None
+
+
+# numba types a kernel's arguments in C when it can fingerprint them (arrays, numbers and
+# tuples of them); a System holds KernelPointers (colliders, wind, FEM), which it cannot, so
+# each call from Python typed the whole System in Python: 0.5 ms a call, 0.1-0.2 s of the
+# README's warm run. A System's fields never change type, so the last few Systems keep
+# their type here (strong references: a NamedTuple takes no weak one).
+_SYSTEM_TYPES: dict[int, tuple[System, object]] = {}
+_SYSTEM_TYPES_KEPT = 4
+
+
+@typeof_impl.register(System)
+def _typeof_system(system: System, c):
+    kept = _SYSTEM_TYPES.get(id(system))
+    if kept is not None and kept[0] is system:
+        return kept[1]
+    fields = [typeof_impl(v, c) for v in system]
+    if any(t is None for t in fields):
+        return None
+    system_type = types.BaseTuple.from_types(fields, System)
+    if len(_SYSTEM_TYPES) >= _SYSTEM_TYPES_KEPT:
+        del _SYSTEM_TYPES[next(iter(_SYSTEM_TYPES))]  # the oldest
+    _SYSTEM_TYPES[id(system)] = (system, system_type)
+    return system_type
 
 
 def build_system(scene: Scene, model: ClothModel) -> System:

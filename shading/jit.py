@@ -78,6 +78,7 @@ class KernelPointer(WrapperAddressProtocol):
         self.argtypes = tuple(a if isinstance(a, types.Type) else dispatcher.typeof_pyval(a)
                               for a in args)
         self._signature = types.none(*self.argtypes)
+        self._numba_type_ = types.FunctionType(self._signature)
         self._address = None
 
     def signature(self):

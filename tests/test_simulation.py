@@ -369,3 +369,19 @@ def test_still_cloth_without_gravity_never_trips_the_guard():
     x0 = np.array(sim.positions, copy=True)
     sim.advance(30)
     assert np.abs(sim.positions - x0).max() <= 1e-15
+
+
+def test_a_systems_kept_type_is_numbas_own():
+    """system._typeof_system keeps a System's numba type (numba types a System holding
+    KernelPointers in Python on every call): it must equal numba's own typing of the tuple,
+    and a System with other fields (a new object) must get its own."""
+    from numba import typeof
+    from numba.core.typing.typeof import Purpose, _TypeofContext, _typeof_tuple
+
+    for name in ("flag", "swing"):  # wind, box collider; FEM
+        system = Simulation(scene_path(name)).system
+        numbas = _typeof_tuple(system, _TypeofContext(Purpose.argument))
+        assert typeof(system) == numbas and typeof(system) == numbas  # computed, then kept
+        other = system._replace(steps_per_frame=30.0)  # int64 -> float64
+        assert typeof(other) == _typeof_tuple(other, _TypeofContext(Purpose.argument))
+        assert typeof(other) != numbas
