@@ -20,7 +20,8 @@ import numba
 from numba import prange
 from numba.core import caching, types
 from numba.core.types.function_type import WrapperAddressProtocol
-from numba.experimental import function_type  # noqa: F401  (registers typeof for KernelPointer)
+from numba.core.typing.typeof import typeof_impl
+from numba.experimental import function_type  # noqa: F401  (first-class functions: model, unboxing)
 
 __all__ = ["STAGE", "KernelPointer", "njit", "prange", "read_only"]
 
@@ -78,7 +79,7 @@ class KernelPointer(WrapperAddressProtocol):
         self.argtypes = tuple(a if isinstance(a, types.Type) else dispatcher.typeof_pyval(a)
                               for a in args)
         self._signature = types.none(*self.argtypes)
-        self._numba_type_ = types.FunctionType(self._signature)
+        self.numba_type = types.FunctionType(self._signature)
         self._address = None
 
     def signature(self):
@@ -94,6 +95,12 @@ class KernelPointer(WrapperAddressProtocol):
 
     def __reduce__(self):
         return KernelPointer, (self.dispatcher, self.argtypes)
+
+
+@typeof_impl.register(KernelPointer)
+def _typeof_kernel_pointer(pointer: KernelPointer, c) -> types.FunctionType:
+    """Its type, built once (numba's own typeof for the protocol builds it on every call)."""
+    return pointer.numba_type
 
 
 @contextlib.contextmanager
