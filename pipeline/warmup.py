@@ -32,9 +32,10 @@ import numpy as np
 from .progress import bar, counter
 
 # The simulation's kernels with their cold compile CPU times in seconds (the README's first
-# command, 2026-11-24, one after the other in one process; the kernels called through a
-# KernelPointer since 2026-11-25 share their callers' former time in the ratio measured then). They split the kernels between
-# this process and the helper (`split`) and give the estimate of the first-run message.
+# command, 2026-11-24, one after the other in one process; a kernel called through a
+# KernelPointer since 2026-11-25 shares its caller's former time in the ratio measured
+# then). They split the kernels between this process and the helper (`split`) and give
+# the estimate of the first-run message.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -63,21 +64,19 @@ class Job:
         module, function = self.name.split(":")
         return getattr(importlib.import_module(module), function)
 
-    def signature(self, disp) -> tuple:
-        """The argument types (an argument may be a numba type already)."""
-        from numba.core import types
-
-        return tuple(a if isinstance(a, types.Type) else disp.typeof_pyval(a) for a in self.args)
-
     def cached(self) -> bool:
         """Compiled in this process already, or in numba's disk cache for these types."""
+        from shading.jit import argument_types
+
         disp = self.dispatcher()
-        sig = self.signature(disp)
+        sig = argument_types(disp, self.args)
         return sig in disp.overloads or any(key[0] == sig for key in _cache_index(disp))
 
     def compile(self) -> None:
+        from shading.jit import argument_types
+
         disp = self.dispatcher()
-        disp.compile(self.signature(disp))
+        disp.compile(argument_types(disp, self.args))
 
 
 def _cache_index(disp) -> list[tuple]:

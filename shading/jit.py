@@ -23,7 +23,7 @@ from numba.core.types.function_type import WrapperAddressProtocol
 from numba.core.typing.typeof import typeof_impl
 from numba.experimental import function_type  # noqa: F401  (first-class functions: model, unboxing)
 
-__all__ = ["STAGE", "KernelPointer", "njit", "prange", "read_only"]
+__all__ = ["STAGE", "KernelPointer", "argument_types", "njit", "prange", "read_only"]
 
 LOCK_NAME = "clothpipe-cache.lock"
 
@@ -62,6 +62,11 @@ def read_only(array):
     return view
 
 
+def argument_types(dispatcher, args: tuple) -> tuple:
+    """numba's types of `args` as `dispatcher` would type them (a numba type stays itself)."""
+    return tuple(a if isinstance(a, types.Type) else dispatcher.typeof_pyval(a) for a in args)
+
+
 class KernelPointer(WrapperAddressProtocol):
     """A compiled kernel handed to other kernels as data: numba types it as a first-class
     function and its callers call it through its address.
@@ -76,8 +81,7 @@ class KernelPointer(WrapperAddressProtocol):
 
     def __init__(self, dispatcher, args: tuple):
         self.dispatcher = dispatcher
-        self.argtypes = tuple(a if isinstance(a, types.Type) else dispatcher.typeof_pyval(a)
-                              for a in args)
+        self.argtypes = argument_types(dispatcher, args)
         self._signature = types.none(*self.argtypes)
         self.numba_type = types.FunctionType(self._signature)
         self._address = None

@@ -232,7 +232,7 @@ def update_poses(table, t_start, t_end):
             pose_at(table.keys[c], n, t_end, table.pose[c, 1])
 
 
-@njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
 def _collide_range(x, last, pinned, table, lo, hi):
     """collide_point on the free points [lo, hi). Compiled without numba's reference counts
     (`_nrt=False`, as numba's own sort and string kernels are: nothing here allocates): with
