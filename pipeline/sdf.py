@@ -22,7 +22,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from shading.jit import njit
+from shading.jit import njit, read_only
 
 HEADER_WIDTH = 10  # offset, origin (3), h, 1/h, nx, ny, nz, h * sqrt(3)
 MAX_NODES = 2_000_000
@@ -64,6 +64,9 @@ def build_grid(vertices: np.ndarray, faces: np.ndarray, *, solid: bool, thicknes
     follows the face orientation). Cell size: half the median edge length, at most 1/16 of
     the largest extent; then made finer while the measured error exceeds thickness / 2 and
     the grid stays within max_nodes."""
+    # the grid's kernels take read-only meshes only, so they compile once whoever calls (a
+    # caller's writable arrays, or the writable copy of a mesh flipped to wind outward,
+    # compiled them again: 3.4 s of CPU in the tests)
     vertices = read_only(np.ascontiguousarray(vertices, dtype=np.float64))
     faces = read_only(np.ascontiguousarray(faces, dtype=np.int64))
     mesh = (vertices, faces, *_pseudo_normals(vertices, faces))
@@ -85,16 +88,6 @@ def build_grid(vertices: np.ndarray, faces: np.ndarray, *, solid: bool, thicknes
         if finer > 0.95 * h:
             return grid
         h = finer
-
-
-def read_only(a: np.ndarray) -> np.ndarray:
-    """A read-only view of a: numba types a writable array apart from a read-only one, so
-    the grid's kernels take read-only meshes only and compile once whoever calls (a
-    caller's writable arrays, or the writable copy of a mesh flipped to wind outward,
-    compiled them again: 3.4 s of CPU in the tests)."""
-    view = a.view()
-    view.flags.writeable = False
-    return view
 
 
 def _node_count(low: np.ndarray, high: np.ndarray, h: float, thickness: float) -> int:

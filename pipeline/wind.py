@@ -28,6 +28,7 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
+from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 from numba.np.unsafe.ndarray import to_fixed_tuple
 
@@ -79,8 +80,8 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams |
         rho * wind.lift / 108.0, modes, np.zeros(GUST_MODES, np.float32),
         np.zeros((bands, 6, (rows + 2) * nw), np.float32),
         np.zeros((bands, 2, 3, (rows + 2) * nw + 1), np.float32))
-    x = np.zeros((3, nw * nh))  # positions, velocities and forces: (3, N) float64
-    return w._replace(band=KernelPointer(_band, (x, x, w, x, np.int64(0))))
+    field = types.float64[:, ::1]  # positions, velocities and forces: (3, N)
+    return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0))))
 
 
 def max_wind_speed(wind) -> float:
@@ -241,10 +242,9 @@ def _band(x, v, w, f, band):
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def _all_bands(x, v, w, f):
-    band, bands = w.band, WindParams(*w[:-1], None)
+def _all_bands(x, v, band, w, f):
     for b in prange(w.point.shape[0]):
-        band(x, v, bands, f, np.int64(b))
+        band(x, v, w, f, np.int64(b))
 
 
 @njit(cache=True, nogil=True)
@@ -257,10 +257,11 @@ def add_wind_force(x, v, t, w, f):
     if w is None:
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
+    band, bands = w.band, WindParams(*w[:-1], None)  # _band takes the params without it
     if w.point.shape[0] == 1:
-        w.band(x, v, WindParams(*w[:-1], None), f, np.int64(0))  # no thread launch for one band
+        band(x, v, bands, f, np.int64(0))  # no thread launch for a single band
     else:
-        _all_bands(x, v, w, f)
+        _all_bands(x, v, band, bands, f)
 
 
 @njit(cache=True, nogil=True)

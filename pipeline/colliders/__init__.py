@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import numpy as np
+from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 
 from . import box, mesh, plane, sphere
@@ -99,9 +100,9 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
             keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
     table = ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
                           np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
-    x = np.zeros((3, 1))  # positions and positions a step earlier: (3, N) float64
+    field = types.float64[:, ::1]  # positions, and positions a step earlier: (3, N)
     return table._replace(range=KernelPointer(
-        _collide_range, (x, x, np.zeros(1, np.uint8), table, np.int64(0), np.int64(1))))
+        _collide_range, (field, field, types.uint8[::1], table, np.int64(0), np.int64(1))))
 
 
 def collider_pose(obj, t: float) -> tuple[np.ndarray, np.ndarray]:
