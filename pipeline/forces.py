@@ -137,9 +137,10 @@ total_force_now = total_force.py_func
 @register_jitable(inline="always")
 def force_fields(s) -> tuple:
     """The System's fields the forces read, as one argument of `forces_of` (plain Python
-    when Python calls it, inlined in kernels)."""
+    when Python calls it, inlined in kernels). The pointer comes last: numba tries to unify
+    a plain tuple starting with a function as a tuple of functions, and warns."""
     return (s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-            s.gravity, s.spring_force, s.wind)
+            s.gravity, s.spring_force, s.wind, s.kernels.internal)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -148,9 +149,9 @@ def forces_of(x, v, t, fields, f):
     Python it compiles once per model and wind (its entry point unboxes these fields; one
     taking the System compiled again for every System type, 2-3 s each, and unboxed all of
     it)."""
-    fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind = fields
-    internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                    spring_force, f)
+    fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind, internal = (
+        fields)
+    internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)
     add_other_forces(x, v, t, wind, f)
 
 
@@ -158,10 +159,11 @@ def forces_of(x, v, t, fields, f):
 # for every System type, and no half-second entry point that unboxes the whole System).
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                     spring_force, f):
-    """f[:] = gravity + the elastic forces: the FEM's (fem not None) or the springs'."""
+    """f[:] = gravity + the elastic forces: the FEM's (fem not None) or the springs'.
+    Called through System.kernels.internal (a KernelPointer)."""
     if fem is None:
         spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
                       f)

@@ -43,7 +43,7 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.1,
                    "pipeline.colliders:_collide_range": 5.0,
                    "pipeline.forces:internal_forces": 4.4,
                    "pipeline.self_collision:self_collide": 5.0,
-                   "pipeline.system:_classic_stretch_limit": 2.6,
+                   "pipeline.constraints:limit_stretch": 2.6,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.2,
                    "pipeline.system:energy_guard": 0.2, "pipeline.wind:add_wind_force": 1.3,
                    "pipeline.wind:_band": 2.9, "pipeline.fem:_band": 8.0}
@@ -89,38 +89,27 @@ def _cache_index(disp) -> list[tuple]:
 
 
 def kernel_pointers(system) -> list:
-    """The System's KernelPointers: the colliders' point range, the wind's and the FEM's
-    band kernels."""
-    return [system.colliders.range] + [p.band for p in (system.wind, system.fem)
-                                       if p is not None]
+    """The System's KernelPointers: the stepping kernels' passes (System.kernels), the
+    colliders' point range, the wind's and the FEM's band kernels."""
+    return [p for p in system.kernels if p is not None] + [system.colliders.range] + [
+        p.band for p in (system.wind, system.fem) if p is not None]
 
 
 def sim_jobs(system) -> list[Job]:
     """The kernels every integrator calls once per step, with arguments of the types the
     integrators pass (self-collision only when the scene turns it on: otherwise numba
-    prunes it from the stepping kernel), longest to compile first."""
+    prunes it from the stepping kernel), longest to compile first. Most are called through
+    pointers (shading.jit.KernelPointer): jobs of their own, not compiled with their
+    callers."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
-    args = {"pipeline.forces:internal_forces": (x, s.fem, s.offsets, s.gather_order, s.exists,
-                                                s.rest, s.stiffness, s.mass, s.gravity,
-                                                s.spring_force, f),
-            "pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
+    args = {"pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
             "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
             "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass, s.slack_speed),
-            "pipeline.colliders:collide_all": (x, last, s.pinned, s.colliders, 0.0, s.dt),
-            "pipeline.self_collision:self_collide": (
-                x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
-                s.scratch),
-            "pipeline.system:_classic_stretch_limit": (x, s.fem, s.offsets, s.exist_bits, s.limit,
-                                                       s.limit_sq_lo, s.pinned, s.mask),
             "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
-    if s.scratch is None:
-        del args["pipeline.self_collision:self_collide"]
     if s.wind is None:  # pruned from the stepping kernel
         del args["pipeline.wind:add_wind_force"]
-    # kernels the others call through a pointer (shading.jit.KernelPointer): compiled on
-    # their own, not with their callers
     for pointer in kernel_pointers(s):
         disp = pointer.dispatcher
         args[f"{disp.py_func.__module__}:{disp.py_func.__name__}"] = pointer.argtypes

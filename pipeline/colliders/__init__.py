@@ -261,7 +261,7 @@ def _collide_points(x, last, pinned, table):
         collide(x, last, pinned, points, (c * n) // CHUNKS, ((c + 1) * n) // CHUNKS)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def collide_all(x, last, pinned, table, t_start, t_end):
     """Apply the colliders to every free point of x (3, N) for the step from t_start (when
     the points were at `last`) to t_end."""
