@@ -31,24 +31,28 @@ import numpy as np
 
 from .progress import bar, counter
 
-# The simulation's kernels with their cold compile CPU times in seconds (the README's first
-# command, 2026-11-24, one after the other in one process; a kernel called through a
-# KernelPointer since 2026-11-25 shares its caller's former time in the ratio measured
-# then). They split the kernels between this process and the helper (`split`) and give
-# the estimate of the first-run message.
+# The simulation's kernels with their cold compile CPU times in seconds, one after the other
+# in one process on an empty cache (2026-11-25: the sphere, bowl and flag scenes' kernels,
+# scaled so that the renderer's, measured beside them, is 11.2 s; the FEM's band
+# alone the same day). They split the kernels between this process and the helper
+# (`split`) and give the estimate of the first-run message.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.1,
-                   "pipeline.colliders:_collide_range": 5.0,
-                   "pipeline.forces:internal_forces": 4.4,
-                   "pipeline.self_collision:self_collide": 5.0,
-                   "pipeline.constraints:limit_stretch": 2.6,
-                   "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.2,
-                   "pipeline.system:energy_guard": 0.2, "pipeline.wind:add_wind_force": 1.3,
-                   "pipeline.wind:_band": 2.9, "pipeline.fem:_band": 8.0}
-RENDER_SECONDS = 11.2  # every renderer kernel for one shader
-STEP_SECONDS = 3.3  # the integrator's stepping kernel (position passes and guard inlined)
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
+                   "pipeline.colliders:_collide_range": 2.7,
+                   "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
+                   "pipeline.forces:internal_forces": 5.0,
+                   "pipeline.self_collision:self_collide": 3.1,
+                   "pipeline.constraints:limit_stretch": 2.5,
+                   "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.45,
+                   "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
+                   "pipeline.wind:_band": 3.3, "pipeline.fem:_band": 8.0}
+# every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
+# they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
+# (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
+RENDER_SECONDS = 9.5
+STEP_SECONDS = 3.4  # the integrator's stepping kernel (its passes called through pointers)
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
@@ -90,8 +94,9 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers: the stepping kernels' passes (System.kernels), the
-    colliders' point range, the wind's and the FEM's band kernels."""
-    return [p for p in system.kernels if p is not None] + [system.colliders.range] + [
+    colliders' point range and mesh projection, the wind's and the FEM's band kernels."""
+    table = system.colliders
+    return [p for p in system.kernels if p is not None] + [table.range, table.mesh] + [
         p.band for p in (system.wind, system.fem) if p is not None]
 
 

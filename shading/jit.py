@@ -75,14 +75,16 @@ class KernelPointer(WrapperAddressProtocol):
     optimises and generates that code again there (and a parallel loop does so four
     times); a kernel called through a pointer is compiled once, on its own, and its callers
     stay small. The kernel must not raise (numba's C wrapper cannot pass an exception on).
-    Pickles as the dispatcher and the argument types; the address is the kernel's for
-    those types in this process (compiled, or loaded from the cache, on first use).
+    Pickles as the dispatcher, the argument types and the return type (`returns`: none
+    unless given); the address is the kernel's for those types in this process (compiled,
+    or loaded from the cache, on first use).
     """
 
-    def __init__(self, dispatcher, args: tuple):
+    def __init__(self, dispatcher, args: tuple, returns: types.Type = types.none):
         self.dispatcher = dispatcher
         self.argtypes = argument_types(dispatcher, args)
-        self._signature = types.none(*self.argtypes)
+        self.returns = returns
+        self._signature = returns(*self.argtypes)
         self.numba_type = types.FunctionType(self._signature)
         self._address = None
 
@@ -98,7 +100,7 @@ class KernelPointer(WrapperAddressProtocol):
         return self._address
 
     def __reduce__(self):
-        return KernelPointer, (self.dispatcher, self.argtypes)
+        return KernelPointer, (self.dispatcher, self.argtypes, self.returns)
 
 
 @typeof_impl.register(KernelPointer)

@@ -61,10 +61,19 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
     assert (tmp_path / "cold.gif").read_bytes() == (tmp_path / "warm.gif").read_bytes()
 
 
+# never in one scene's jobs: a table has the mesh's projection or its stand-in; the FEM has
+# no stretch limit
+EXCLUSIVE = [{"pipeline.colliders.mesh:project", "pipeline.colliders:_unmoved"},
+             {"pipeline.fem:_band", "pipeline.constraints:limit_stretch"}]
+
+
 def test_split_balances_the_two_processes():
     names = list(warmup.COMPILE_SECONDS)
     for mask in range(1, 2 ** len(names)):
-        jobs = sorted((warmup.Job(n, ()) for k, n in enumerate(names) if mask >> k & 1),
+        chosen_names = {n for k, n in enumerate(names) if mask >> k & 1}
+        if any(pair <= chosen_names for pair in EXCLUSIVE):
+            continue
+        jobs = sorted((warmup.Job(n, ()) for n in sorted(chosen_names)),
                       key=lambda j: -warmup.COMPILE_SECONDS[j.name])
         for render in (False, True):
             for step in (False, True):

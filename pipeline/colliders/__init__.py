@@ -69,6 +69,7 @@ class ColliderTable(NamedTuple):
     pivot: np.ndarray  # (C, 3)
     pose: np.ndarray  # (C, 2, POSE_WIDTH) scratch: poses at the start and the end of a step
     active: np.ndarray  # (C,) uint8: 0 = skipped while nothing can reach it (pipeline.reach)
+    mesh: KernelPointer | None = None  # mesh.project, or _unmoved when no collider is a mesh
     range: KernelPointer | None = None  # _collide_range for this table; None inside it
 
 
@@ -100,9 +101,21 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
             keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
     table = ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
                           np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
+    projection = mesh.project if mesh.KIND in kinds else _unmoved
+    table = table._replace(mesh=KernelPointer(
+        projection, (table.params, np.int64(0), table.data) + (0.0,) * 6, POINT))
     field = types.float64[:, ::1]  # positions, and positions a step earlier: (3, N)
     return table._replace(range=KernelPointer(
         _collide_range, (field, field, types.uint8[::1], table, np.int64(0), np.int64(1))))
+
+
+POINT = types.UniTuple(types.float64, 3)  # what a projection returns
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _unmoved(params, c, data, x, y, z, lx, ly, lz):
+    """The mesh projection's stand-in in a table without a mesh collider (never called)."""
+    return x, y, z
 
 
 def collider_pose(obj, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -190,21 +203,26 @@ def _to_world(pose, c, s, px, py, pz, x, y, z):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _project(kind, params, c, data, x, y, z, lx, ly, lz):
+def _project(kind, params, c, data, mesh_project, x, y, z, lx, ly, lz):
     if kind == sphere.KIND:
         return sphere.project(params, c, data, x, y, z, lx, ly, lz)
     if kind == plane.KIND:
         return plane.project(params, c, data, x, y, z, lx, ly, lz)
     if kind == box.KIND:
         return box.project(params, c, data, x, y, z, lx, ly, lz)
-    return mesh.project(params, c, data, x, y, z, lx, ly, lz)
+    if mesh.far(params, c, data, x, y, z, lx, ly, lz):  # most points: no call
+        return x, y, z
+    return mesh_project(params, c, data, x, y, z, lx, ly, lz)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def collide_point(kinds, params, data, key_count, pivot, pose, active, x, y, z, lx, ly, lz):
+def collide_point(kinds, params, data, key_count, pivot, pose, active, mesh_project, x, y, z,
+                  lx, ly, lz):
     """Apply every active collider, in order, to the point at (x, y, z) that was at
     (lx, ly, lz) at the start of the step (the fields of a ColliderTable; poses from
-    update_poses)."""
+    update_poses). A mesh's projection is called through a pointer (ColliderTable.mesh),
+    for the points near its surface: compiled on its own (about 3 s), and only for a
+    scene that has a mesh."""
     for c in range(kinds.shape[0]):
         if active[c] == 0:
             continue
@@ -215,7 +233,8 @@ def collide_point(kinds, params, data, key_count, pivot, pose, active, x, y, z, 
             rlx, rly, rlz = _to_rest(pose, c, 0, pivot[c, 0], pivot[c, 1], pivot[c, 2],
                                      lx, ly, lz)
         # one call site: each kind's projection is inlined (compiled) once, not twice
-        qx, qy, qz = _project(kinds[c], params, c, data, rx, ry, rz, rlx, rly, rlz)
+        qx, qy, qz = _project(kinds[c], params, c, data, mesh_project, rx, ry, rz, rlx, rly,
+                              rlz)
         if not moving:
             x, y, z = qx, qy, qz
         elif qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
@@ -241,12 +260,13 @@ def _collide_range(x, last, pinned, table, lo, hi):
     point, 3.7x the whole pass (92 against 25 us per call on the sphere scene)."""
     kinds, params, data = table.kinds, table.params, table.data
     key_count, pivot, pose, active = table.key_count, table.pivot, table.pose, table.active
+    mesh_project = table.mesh
     for p in range(lo, hi):
         if pinned[p]:
             continue
         x[0, p], x[1, p], x[2, p] = collide_point(
-            kinds, params, data, key_count, pivot, pose, active, x[0, p], x[1, p], x[2, p],
-            last[0, p], last[1, p], last[2, p])
+            kinds, params, data, key_count, pivot, pose, active, mesh_project, x[0, p],
+            x[1, p], x[2, p], last[0, p], last[1, p], last[2, p])
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)

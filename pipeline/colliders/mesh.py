@@ -140,6 +140,29 @@ def _step_again(grid, data, x, y, z, level):
     return qx, qy, qz, step2
 
 
+@njit(cache=True, nogil=True, inline="always")
+def far(params, c, data, x, y, z, lx, ly, lz):
+    """Whether `project` certainly leaves the point where it is (its first tests): outside
+    the grid, or the point's cell corner farther from the surface than the cell's diagonal
+    plus the contact distance. The colliders inline it and call `project` (through a
+    pointer) only for the other points."""
+    grid = sdf.grid_of(params, c)
+    base, _, _, _, inside = sdf.locate(grid, x, y, z)
+    if not inside:
+        return True
+    corner, diagonal, thickness = data[base], grid[9], params[c, _THICKNESS]
+    if params[c, _SOLID] != 0.0:
+        return corner - diagonal >= thickness
+    return abs(corner) - diagonal >= max(thickness, _move(params, c, x, y, z, lx, ly, lz))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _move(params, c, x, y, z, lx, ly, lz):
+    """The step's length plus the crossing slack."""
+    mx, my, mz = x - lx, y - ly, z - lz
+    return math.sqrt(mx * mx + my * my + mz * mz) + params[c, _SLACK]
+
+
 @njit(cache=True, nogil=True)
 def project(params, c, data, x, y, z, lx, ly, lz):
     """The point now at (x, y, z), at (lx, ly, lz) at the start of the step, corrected by
@@ -148,7 +171,7 @@ def project(params, c, data, x, y, z, lx, ly, lz):
     costs atomic increments on every call (several times this kernel's own cost)."""
     grid = sdf.grid_of(params, c)
     thickness, keep = params[c, _THICKNESS], 1.0 - params[c, _FRICTION]
-    solid, slack, long_step2 = params[c, _SOLID] != 0.0, params[c, _SLACK], params[c, _LONG_STEP2]
+    solid, long_step2 = params[c, _SOLID] != 0.0, params[c, _LONG_STEP2]
     base, tx, ty, tz, inside = sdf.locate(grid, x, y, z)
     if not inside:
         return x, y, z
@@ -161,8 +184,7 @@ def project(params, c, data, x, y, z, lx, ly, lz):
             return x, y, z
         level = thickness
     else:
-        mx, my, mz = x - lx, y - ly, z - lz
-        move = math.sqrt(mx * mx + my * my + mz * mz) + slack
+        move = _move(params, c, x, y, z, lx, ly, lz)
         if abs(corner) - diagonal >= max(thickness, move) or not sdf.trusted(grid, data, base):
             return x, y, z
         d, gx, gy, gz = sdf.trilinear(grid, data, base, tx, ty, tz)
