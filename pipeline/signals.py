@@ -11,8 +11,15 @@ a signal stopped.
 
 A signal that lands while LLVM is calling back into Python (numba compiling or loading a
 kernel: llvmlite's object cache is a ctypes callback) is held back: ctypes would print and
-drop the exception, losing the signal or leaving LLVM with a half-set buffer (a crash). It
-is sent again a moment later, until it finds the main thread back in plain Python. So is
+drop the exception, losing the signal or leaving LLVM with a half-set buffer (a crash). So
+is one that lands while a kernel's entry point unboxes a first-class function argument (a
+KernelPointer): numba's code calls `_numba_unpickle`, then `_get_wrapper_address` without
+checking for an error in between, and the signal's exception became "TypeError:
+_get_wrapper_address() missing 1 required positional argument" (an internal error, exit
+1; once in 15 runs of the MP4 signal test). Python runs a handler at the first Python code
+it meets, and after a kernel that is often numba's unboxing for the next call. A held-back
+signal is sent again a moment later, until it finds the main thread back in plain Python.
+So is
 one that lands inside `deferred()`, a step that must not be cut in half (starting worker
 processes: a worker spawned but not yet sent its task would die reading an empty pipe, with
 a traceback).
@@ -61,7 +68,7 @@ def handled() -> Iterator[None]:
     def handler(signum, frame):
         if fired:  # already stopping: let the cleanup finish
             return
-        if _deferring or _inside_llvmlite(frame):
+        if _deferring or _inside_native_callback(frame):
             threading.Timer(RESEND_SECONDS, resend, (signum,)).start()
             return
         fired.append(signum)
@@ -91,11 +98,16 @@ def deferred() -> Iterator[None]:
         _deferring -= 1
 
 
-def _inside_llvmlite(frame) -> bool:
-    """Whether `frame` or a caller of it is llvmlite's: a ctypes callback from LLVM may be
-    running, where an exception would be dropped."""
+# Python modules that native code calls without passing an exception on: llvmlite's (ctypes
+# callbacks from LLVM) and those numba's unboxing of a first-class function argument calls
+CALLBACK_MODULES = ("llvmlite.", "numba.core.serialize", "numba.experimental.function_type")
+
+
+def _inside_native_callback(frame) -> bool:
+    """Whether `frame` or a caller of it is in CALLBACK_MODULES: native code may have called
+    it, and would drop or mangle an exception."""
     while frame is not None:
-        if frame.f_globals.get("__name__", "").startswith("llvmlite."):
+        if frame.f_globals.get("__name__", "").startswith(CALLBACK_MODULES):
             return True
         frame = frame.f_back
     return False

@@ -17,7 +17,7 @@ import trimesh
 from numba import njit
 
 from pipeline import sdf
-from pipeline.colliders import PARAMS_WIDTH, ColliderData
+from pipeline.colliders import PARAMS_WIDTH, ColliderData, collide_all, pack_colliders
 from pipeline.colliders import mesh as mesh_kind
 from pipeline.scene import MeshCollider, SceneError
 
@@ -393,6 +393,37 @@ def test_one_sided_ignores_far_points_and_the_side_flip_beyond_the_rim():
     np.testing.assert_array_equal(project(obj, lasts, nows), lasts)
     far = _shell_points(100, 0.3, seed=11)
     np.testing.assert_array_equal(project(obj, far, far * 1.01), far)
+
+
+@njit  # not cached, as _project_points
+def _far_points(params, c, data, points, lasts, out):
+    for p in range(points.shape[0]):
+        out[p] = mesh_kind.far(params, c, data, points[p, 0], points[p, 1], points[p, 2],
+                               lasts[p, 0], lasts[p, 1], lasts[p, 2])
+
+
+@pytest.mark.parametrize("name, solid", [("bowl.obj", True), ("open_bowl.obj", False)])
+def test_the_pass_skips_only_points_the_projection_leaves(name, solid):
+    """The colliders' pass tests mesh.far inline and calls the projection (through a
+    pointer) only where it is false: far must hold only for points `project` returns as
+    they are, and the pass (pack_colliders, collide_all) must move every point exactly as
+    `project` does."""
+    m, _, _ = load(name)
+    obj = collider(name, solid=solid)
+    rng = np.random.default_rng(12)
+    points = np.concatenate([near_points(m, 300, 0.03, seed=12),
+                             rng.uniform(-0.6, 0.6, (100, 3))])  # some outside the grid
+    lasts = points + rng.normal(scale=0.004, size=points.shape)
+    params, data = packed(obj)
+    far = np.zeros(len(points), dtype=np.bool_)
+    _far_points(params, 0, data, points, lasts, far)
+    out = project((params, data), points, lasts)
+    assert far.sum() > 50 and (~far).sum() > 50
+    np.testing.assert_array_equal(out[far], points[far])
+    assert (out[~far] != points[~far]).any(axis=1).sum() > 20
+    x, last = np.ascontiguousarray(points.T), np.ascontiguousarray(lasts.T)
+    collide_all(x, last, np.zeros(len(points), np.uint8), pack_colliders([obj]), 0.0, 0.0)
+    np.testing.assert_array_equal(x.T, out)
 
 
 def test_solid_needs_a_closed_mesh():

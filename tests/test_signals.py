@@ -255,6 +255,72 @@ with handled():
 """
 
 
+# A kernel's entry point unboxing a first-class function argument (a KernelPointer) calls
+# numba.core.serialize._numba_unpickle, then _get_wrapper_address, unchecked: a signal whose
+# handler ran in the first became "TypeError: _get_wrapper_address() missing 1 required
+# positional argument" (a run of the suite, 2026-11-25). This child's _numba_unpickle, a
+# function of numba's module as the real one is, sends the signal and runs Python code, so
+# the handler runs there every time.
+SIGNAL_WHILE_UNBOXING_A_POINTER = """
+import os, signal, sys, time
+import numpy as np
+import numba.core.serialize as serialize
+from shading.jit import KernelPointer, njit
+from pipeline.signals import Terminated, exit_status, handled
+
+SOURCE = '''
+def _numba_unpickle(address, bytedata, hashed):
+    if SENT and not SENT[0]:
+        SENT[0] = True
+        os.kill(os.getpid(), signal.SIGNUM)
+        for _ in range(100000):  # Python code: the handler runs here, mid-unboxing
+            pass
+    return REAL(address, bytedata, hashed)
+'''
+serialize.REAL, serialize.SENT = serialize._numba_unpickle, []
+serialize.os, serialize.signal = os, signal
+exec(compile(SOURCE, serialize.__file__, "exec"), vars(serialize))
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def add_one(x):
+    x[0] += 1.0
+
+
+@njit(cache=True)
+def call(kernel, x):
+    kernel(x)
+
+
+x = np.zeros(1)
+pointer = KernelPointer(add_one, (x,))
+call(pointer, x)  # compiled; numba looks _numba_unpickle up on its first use: ours
+with handled():
+    try:
+        serialize.SENT.append(False)
+        call(pointer, x)
+        print("called", x[0], flush=True)
+        time.sleep(10)  # the deferred signal ends this at once
+        print("finished", flush=True)
+    except Terminated as exc:
+        print("stopped", exc.signum, file=sys.stderr, flush=True)
+        sys.exit(exit_status(exc))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP])
+def test_signal_while_unboxing_a_kernel_pointer_is_deferred(tmp_path, sig):
+    (tmp_path / "child.py").write_text(SIGNAL_WHILE_UNBOXING_A_POINTER.replace(
+        "SIGNUM", signal.Signals(sig).name))
+    proc = subprocess.run([sys.executable, str(tmp_path / "child.py")], capture_output=True,
+                          text=True, env=child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache")),
+                          timeout=WAIT, preexec_fn=as_from_a_terminal())
+    assert proc.returncode == 128 + sig, proc.stderr
+    # the call ran whole, then the signal stopped the run in the sleep
+    assert "called 2.0" in proc.stdout and "finished" not in proc.stdout, proc.stdout
+    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr
+
+
 # `render report` starting its worker pool, with a SIGTERM sent to itself just after the
 # first worker process is spawned and before the pool writes it its set-up: the worker would
 # read an empty pipe and print a traceback, unless the signal waits for the pool to start.
