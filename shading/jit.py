@@ -102,6 +102,9 @@ class KernelPointer(WrapperAddressProtocol):
     def __reduce__(self):
         return KernelPointer, (self.dispatcher, self.argtypes, self.returns)
 
+    def __deepcopy__(self, memo) -> KernelPointer:
+        return self  # immutable: a copied state or System shares it (and its address)
+
 
 @typeof_impl.register(KernelPointer)
 def _typeof_kernel_pointer(pointer: KernelPointer, c) -> types.FunctionType:

@@ -19,7 +19,8 @@ velocity change v' += dx / dt (docs/integrators.md).
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit, prange
+from numba.core import types
+from shading.jit import KernelPointer, njit, prange
 
 from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
                       spring_fields, spring_force_buffer, total_force)
@@ -42,11 +43,18 @@ class State(VelocityState):
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
+        # the solve, called through a pointer: compiled once per model rather than linked
+        # into (and optimised again in) the stepping kernel of every System type
+        springs = (system.offsets, system.gather_order, system.exists, system.rest,
+                   system.stiffness)
+        self.solve = KernelPointer(solve_step, (
+            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem, springs,
+            self.unit, self.alpha, self.buffer, self.work, 0.0), types.int64)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.predicted, self.force,
-                       self.unit, self.alpha, self.buffer, self.work, self.iterations, steps,
-                       first_step)
+                       self.unit, self.alpha, self.buffer, self.work, self.iterations,
+                       self.solve, steps, first_step)
 
 
 @njit(cache=True, nogil=True)
@@ -69,11 +77,12 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
                           mass_factor * mass[p] * y[ax, p] - h2 * out[ax, p])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
     at its start; returns CG iterations. It takes the System's fields (`springs`: see
-    forces.spring_fields), so it compiles once per model, not per System type."""
+    forces.spring_fields), so it compiles once per model, not per System type; the
+    stepping kernel calls it through State.solve (a KernelPointer)."""
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
@@ -131,8 +140,8 @@ def _update(x, v, last, dv, pinned, dt, predicted):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, steps,
-            first_step):
+def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, solve,
+            steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     springs = spring_fields(s)
@@ -140,8 +149,8 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
     for step in range(steps):
         t = (first_step + step) * s.dt
         total_force(x, v, t, s, force)
-        iterations[0] += solve_step(x, v, force, s.dt, s.pinned, s.mass, s.fem, springs, unit,
-                                    alpha, buffer, work, gamma)
+        iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, springs, unit,
+                               alpha, buffer, work, gamma)
         _update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
