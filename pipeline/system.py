@@ -79,10 +79,10 @@ class System(NamedTuple):
 
 
 # numba types a kernel's arguments in C when it can fingerprint them (arrays, numbers and
-# tuples of them); a System holds KernelPointers (colliders, wind, FEM), which it cannot, so
-# each call from Python typed the whole System in Python: 0.5 ms a call, 0.1-0.2 s of the
-# README's warm run. A System's fields never change type, so the last few Systems keep
-# their type here (strong references: a NamedTuple takes no weak one).
+# tuples of them); a System holds KernelPointers (its passes, colliders, wind, FEM), which it
+# cannot, so each call from Python typed the whole System in Python: 0.5 ms a call, 0.1-0.2 s
+# of the README's warm run. A System's fields never change type, so the last few Systems
+# keep their type here (strong references: a NamedTuple takes no weak one).
 _SYSTEM_TYPES: dict[int, tuple[System, object]] = {}
 _SYSTEM_TYPES_KEPT = 4
 

@@ -45,11 +45,10 @@ class State(VelocityState):
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
         # the solve, called through a pointer: compiled once per model rather than linked
         # into (and optimised again in) the stepping kernel of every System type
-        springs = (system.offsets, system.gather_order, system.exists, system.rest,
-                   system.stiffness)
         self.solve = KernelPointer(solve_step, (
-            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem, springs,
-            self.unit, self.alpha, self.buffer, self.work, 0.0), types.int64)
+            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem,
+            spring_fields.py_func(system), self.unit, self.alpha, self.buffer, self.work, 0.0),
+            types.int64)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(system, self.x, self.v, self.last, self.predicted, self.force,
