@@ -63,7 +63,9 @@ class FemParams(NamedTuple):
     edge_factor: np.ndarray  # (3, N) |e|^2 / (2 (A1 + A2)) of hinge kind k at p, 0 if none
     offsets: np.ndarray  # (6,) int64, index of A, B, C, D, E, F minus the anchor's
     scratch: np.ndarray  # (18, N) intermediate rows of the passes
-    band: KernelPointer | None = None  # _band for these params (build_fem); None inside it
+    # _triangles and _hinges for these params (build_fem); None in the params they are passed
+    triangles: KernelPointer | None = None
+    hinges: KernelPointer | None = None
 
 
 TRIANGLE_KINDS, HINGE_KINDS, SCRATCH_ROWS = 2, 3, 18
@@ -132,14 +134,17 @@ def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
         tri_area=tri_area, tri_inv=tri_inv, edge_factor=edge_factor, offsets=offsets,
         scratch=np.zeros((SCRATCH_ROWS, n)),
     )
-    return params._replace(band=KernelPointer(_band, band_args(params)))
+    args = element_args(params)
+    return params._replace(triangles=KernelPointer(_triangles, args),
+                           hinges=KernelPointer(_hinges, args))
 
 
-def band_args(params: FemParams) -> tuple:
-    """Arguments of the types _bands_of_parity passes to _band (positions, direction and
-    out are (3, N) float64 arrays; the params without their pointer; mode, band, bands)."""
-    x = params.x_rest
-    return x, x, params._replace(band=None), np.int64(0), np.int64(0), np.int64(2), x
+def element_args(params: FemParams) -> tuple:
+    """Arguments of the types _bands_of_parity passes to _triangles and _hinges (positions,
+    direction and out are (3, N) float64 arrays; the params without their pointers; mode,
+    lo, hi)."""
+    x, i = params.x_rest, np.int64(0)
+    return x, x, params._replace(triangles=None, hinges=None), i, i, i, x
 
 
 def lumped_masses(params: FemParams) -> np.ndarray:
@@ -514,10 +519,17 @@ def _exact_hinges(x, y, params, k, c, start, stop, out):
 # --- one element kind over a range of anchors --------------------------------------------------
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _triangles(x, y, params, t, mode, lo, hi, out):
-    """Add the triangles of kind t anchored in [lo, hi) to out: minus the gradient of E
-    (FORCE), K y (PRODUCT), K_f y (FILTERED_PRODUCT) or the diagonal of -K_f (DIAGONAL)."""
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _triangles(x, y, params, mode, lo, hi, out):
+    """Add the triangles anchored in [lo, hi) to out: minus the gradient of E (FORCE),
+    K y (PRODUCT), K_f y (FILTERED_PRODUCT) or the diagonal of -K_f (DIAGONAL)."""
+    for t in range(TRIANGLE_KINDS):
+        _triangle_kind(x, y, params, t, mode, lo, hi, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _triangle_kind(x, y, params, t, mode, lo, hi, out):
+    """_triangles for the triangles of kind t."""
     o0, o1, o2 = (params.offsets[TRIANGLE_VERTICES[t, 0]], params.offsets[TRIANGLE_VERTICES[t, 1]],
                   params.offsets[TRIANGLE_VERTICES[t, 2]])
     stop = min(hi, x.shape[1] - max(o0, o1, o2))  # the offsets are >= 0
@@ -552,10 +564,19 @@ def _hinge_anchors(params, k, lo, hi, n):
             min(hi, n - max(o[0], o[1], o[2], o[3])))
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _hinges(x, y, params, k, mode, lo, hi, out):
-    """Add the hinges of kind k anchored in [lo, hi) to out, as _triangles (not for
-    PRODUCT: fem_jacobian_product adds the exact hinges itself)."""
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _hinges(x, y, params, mode, lo, hi, out):
+    """Add the hinges anchored in [lo, hi) to out, as _triangles (none without bending
+    stiffness, nor for PRODUCT: fem_jacobian_product adds the exact hinges itself)."""
+    if params.k_bend == 0.0 or mode == PRODUCT:
+        return
+    for k in range(HINGE_KINDS):
+        _hinge_kind(x, y, params, k, mode, lo, hi, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _hinge_kind(x, y, params, k, mode, lo, hi, out):
+    """_hinges for the hinges of kind k."""
     o, start, stop = _hinge_anchors(params, k, lo, hi, x.shape[1])
     if stop <= start:
         return
@@ -581,27 +602,22 @@ def _hinges(x, y, params, k, mode, lo, hi, out):
         _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _band(x, y, params, mode, band, bands, out):
-    """Add the elements anchored in cell rows [band * rows // bands, (band + 1) * rows //
-    bands) to out (rows = nh - 1)."""
-    rows, nw = params.nh - 1, params.nw
-    lo, hi = (band * rows // bands) * nw, ((band + 1) * rows // bands) * nw
-    for t in range(TRIANGLE_KINDS):
-        _triangles(x, y, params, t, mode, lo, hi, out)
-    if params.k_bend != 0.0 and mode != PRODUCT:
-        for k in range(HINGE_KINDS):
-            _hinges(x, y, params, k, mode, lo, hi, out)
-
-
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _bands_of_parity(x, y, params, mode, parity, bands, out):
-    """Add the elements of bands parity, parity + 2, ... to out, in parallel. _band is
-    called through params.band: linked in, it made this loop's compile the longest part of
-    a first FEM run (numba optimises a parallel loop's linked code four times)."""
-    band, elements = params.band, FemParams(*params[:-1], None)
+    """Add the elements of bands parity, parity + 2, ... to out, in parallel: band b holds
+    the elements anchored in cell rows [b * rows // bands, (b + 1) * rows // bands)
+    (rows = nh - 1). _triangles and _hinges are called through params.triangles and
+    params.hinges: linked in, they made this loop's compile the longest part of a first FEM
+    run (numba optimises a parallel loop's linked code four times), and apart they compile
+    in two processes at once (pipeline.warmup)."""
+    triangles, hinges = params.triangles, params.hinges
+    elements = FemParams(*params[:-2], None, None)
+    rows, nw = params.nh - 1, params.nw
     for b in prange(bands // 2):
-        band(x, y, elements, mode, 2 * b + parity, bands, out)
+        band = 2 * b + parity
+        lo, hi = (band * rows // bands) * nw, ((band + 1) * rows // bands) * nw
+        triangles(x, y, elements, mode, lo, hi, out)
+        hinges(x, y, elements, mode, lo, hi, out)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -667,7 +683,7 @@ def fem_jacobian_product(x: np.ndarray, params: FemParams, y: np.ndarray,
     _element_pass(x, y, params, np.int64(PRODUCT), out)
     if params.k_bend != 0.0:
         for k in range(HINGE_KINDS):
-            # every element is anchored in a cell row, as _band counts them
+            # every element is anchored in a cell row, as the bands count them
             o, start, stop = _hinge_anchors(params, k, 0, (params.nh - 1) * params.nw,
                                             x.shape[1])
             if stop > start:

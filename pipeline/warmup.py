@@ -94,10 +94,14 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers: the stepping kernels' passes (System.kernels), the
-    colliders' point range and mesh projection, the wind's and the FEM's band kernels."""
+    colliders' point range and mesh projection, the wind's band and the FEM's elements."""
     table = system.colliders
-    return [p for p in system.kernels if p is not None] + [table.range, table.mesh] + [
-        p.band for p in (system.wind, system.fem) if p is not None]
+    pointers = [p for p in system.kernels if p is not None] + [table.range, table.mesh]
+    if system.wind is not None:
+        pointers.append(system.wind.band)
+    if system.fem is not None:
+        pointers += [system.fem.triangles, system.fem.hinges]
+    return pointers
 
 
 def sim_jobs(system) -> list[Job]:
