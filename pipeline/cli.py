@@ -487,13 +487,18 @@ def run(args, err: _Errors, source=None) -> int:
                                     framing, t_wall)
             from .frames import render_frame, scene_meshes
             from .simulation import Simulation
-            from .warmup import CompileWatch
+            from .warmup import FirstRun, RenderJob
 
             show = progress_enabled(args.quiet)
-            with CompileWatch(err.say if show else None, show) as early:
-                sim = Simulation(scene, shot_seconds=plan.shot_seconds)
+            renders = ((lambda model: RenderJob(scene, model, plan.shader, plan.aa))
+                       if plan.kind else None)
+            # A first run on this machine compiles the kernels, in two processes when it can.
+            with FirstRun(scene.simulation.integrator, renders, err.say if show else None,
+                          show) as first:
+                sim = Simulation(scene, shot_seconds=plan.shot_seconds, prepare=first.start)
+                first.finish(sim)
             return _execute(args, err, scene, plan, sim, writers, golden,
-                            render_frame, scene_meshes, framing, t_wall, early)
+                            render_frame, scene_meshes, framing, t_wall, first.seconds)
         except BaseException:
             for writer in writers.values():
                 writer.abort()
@@ -501,11 +506,9 @@ def run(args, err: _Errors, source=None) -> int:
 
 
 def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_meshes,
-             framing, t_wall, early) -> int:
-    """The render of `run` once the Simulation is built (`early`: the CompileWatch of its
-    building)."""
-    from .warmup import RenderJob, warm_up
-
+             framing, t_wall, compile_seconds) -> int:
+    """The render of `run` once the Simulation is built and its kernels compiled (in
+    `compile_seconds`)."""
     timers = _Timers()
     model = sim.model
     out_w = writers.get("out")
@@ -522,10 +525,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         return img
 
     show = progress_enabled(args.quiet)
-    # A first run on this machine compiles the kernels, in two processes when it can.
-    timers.compile = early.seconds + warm_up(
-        sim, RenderJob(scene, model, plan.shader, plan.aa) if plan.kind else None,
-        say=err.say if show else None, progress=show, announced=early.said)
+    timers.compile = compile_seconds
     # Render the initial state before simulating: a missing texture or a broken shader
     # fails now, not after the simulation (a framed shot's camera is known only after it:
     # a small frame then).

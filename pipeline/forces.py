@@ -1,8 +1,8 @@
 """Forces of the classic model: gravity on every point plus Hooke's law along every enabled
 spring (SPEC section 2, step 1), plus the scene's other forces (wind), shared by every
 integrator through `total_force`. With the FEM model (System.fem not None) the springs'
-forces and Jacobians give way to pipeline.fem's (`internal_forces` and the `jacobian_*`
-functions choose; numba compiles only the branch of the System's model).
+forces and Jacobians give way to pipeline.fem's (System.kernels.internal points to
+`fem_internal_forces`; the `jacobian_*` functions choose by `fem is None`).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
 adds to f and does nothing when its params are None (numba then prunes its code), packed
@@ -162,14 +162,19 @@ def forces_of(x, v, t, fields, f):
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                     spring_force, f):
-    """f[:] = gravity + the elastic forces: the FEM's (fem not None) or the springs'.
-    Called through System.kernels.internal (a KernelPointer)."""
-    if fem is None:
-        spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
-                      f)
-    else:
-        _gravity(mass, gravity, f)
-        add_fem_forces(x, fem, f)
+    """f[:] = gravity + the springs' forces (the classic model: fem is None). Called through
+    System.kernels.internal (a KernelPointer), as fem_internal_forces with the FEM."""
+    spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
+                        spring_force, f):
+    """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). One kernel
+    with internal_forces' `if fem is None` compiled the springs' forces too: numba prunes
+    such a branch only when the argument's type is None."""
+    _gravity(mass, gravity, f)
+    add_fem_forces(x, fem, f)
 
 
 @njit(cache=True, nogil=True)

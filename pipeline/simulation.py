@@ -2,17 +2,16 @@
 from __future__ import annotations
 
 import contextlib
-import copy
 import math
 import os
-import sys
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
+from shading.jit import argument_types
 
-from .integrators import integrator_module
+from .integrators import integrator_module, stepping_kernel
 from .model import ClothModel, build_model
 from .overlap import resolve_start_inside
 from .scene import Scene, load_scene
@@ -65,12 +64,17 @@ class Simulation:
         *,
         initial_positions: np.ndarray | None = None,
         shot_seconds: float | None = None,
+        prepare: Callable[[ClothModel, System], None] | None = None,
     ) -> None:
         """`shot_seconds`: how long the caller will simulate, if known (fidelity auto's pilot
-        on the classic model covers no more than that)."""
+        on the classic model covers no more than that). `prepare`: called with the cloth
+        model and its System once they are built, before the stability limit and the
+        integrator use any kernel (a first run compiles them there: pipeline.warmup)."""
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         self.model: ClothModel = cloth_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
+        if prepare is not None:
+            prepare(self.model, self.system)
         self.omega_max, self.dt_max = stability_limit(self.model)
         self.integrator = self.scene.simulation.integrator
         auto = self.scene.simulation.fidelity == "auto"
@@ -139,14 +143,16 @@ class Simulation:
     # --- kernels -----------------------------------------------------------------------
     @property
     def stepping_kernel(self):
-        """The numba kernel that steps this scene: the `advance` of the module that defines
-        its integrator state's advance (symplectic Euler shares Euler's)."""
-        return sys.modules[type(self._state).advance.__module__].advance
+        """The numba kernel that steps this scene (integrators.stepping_kernel)."""
+        return stepping_kernel(self.integrator)
 
     def compile_kernels(self) -> None:
-        """Compile (or load from numba's cache) the kernels that step this scene, without
-        stepping it: a copy of the integrator state advances by zero steps."""
-        copy.deepcopy(self._state).advance(self.system, 0, self.step_count)
+        """Compile (or load from numba's cache) the kernel that steps this scene, from its
+        arguments' types, without stepping: the kernels it calls through pointers
+        (shading.jit.KernelPointer) compile on their first call, not with it."""
+        kernel = self.stepping_kernel
+        kernel.compile(argument_types(
+            kernel, self._state.arguments(self.system, 0, self.step_count)))
 
     # --- stepping ----------------------------------------------------------------------
     def step(self, steps: int = 1) -> None:

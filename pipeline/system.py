@@ -17,7 +17,8 @@ from shading.jit import KernelPointer, njit
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
 from .fem import FemParams, estimate_omega_max
-from .forces import direction_offsets, gather_order, internal_forces, spring_force_buffer
+from .forces import (direction_offsets, fem_internal_forces, gather_order, internal_forces,
+                     spring_force_buffer)
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .reach import Reach, new_reach, reach_check
 from .scene import Scene
@@ -31,7 +32,7 @@ class StepKernels(NamedTuple):
     (numba optimises a linked callee again in every caller): a stepping kernel compiles in
     about 3.3-3.8 s instead of 4.7-6.5 s (sphere, Verlet, its callees cached)."""
 
-    internal: KernelPointer  # forces.internal_forces
+    internal: KernelPointer  # forces.internal_forces (fem_internal_forces with the FEM)
     collide: KernelPointer  # colliders.collide_all
     stretch: KernelPointer | None  # constraints.limit_stretch; None: the FEM (no Provot)
     self_collide: KernelPointer | None  # self_collision.self_collide; None: off
@@ -151,7 +152,7 @@ def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
     return StepKernels(
-        internal=KernelPointer(internal_forces, (
+        internal=KernelPointer(internal_forces if s.fem is None else fem_internal_forces, (
             field, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
             s.gravity, s.spring_force, field)),
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),

@@ -3,13 +3,15 @@
 numba compiles a kernel on its first call and caches the machine code on disk; later runs
 load it in milliseconds. On an empty cache compiling is nearly all of a short render (the
 README's first command: 44 of its 46 s, 2026-11-24), and numba compiles in Python, under
-the GIL, so threads cannot share the work. `warm_up` finds which of a scene's kernels are
-not cached yet. When two processes would finish sooner (`split`, by the kernels' measured
-compile times), a helper process (`python -m pipeline.warmup`) compiles part of the
-simulator's and then the renderer's (if missing) while this process compiles the rest,
-then this process compiles the integrator's stepping kernel on top of both (loading the
-helper's work from the cache). The cache is safe for two writers (shading.jit). Otherwise
-everything missing is compiled here, as before.
+the GIL, so threads cannot share the work. `FirstRun` finds which of a scene's kernels are
+not cached yet, as soon as the Simulation has packed its System (before a FEM cloth's
+stability limit runs the element kernels). When two processes would finish sooner
+(`split`, by the kernels' measured compile times), a helper process (`python -m
+pipeline.warmup`) compiles part of the simulator's and then the renderer's (if missing)
+while this process compiles the rest and then the integrator's stepping kernel, from
+its arguments' types (it calls most of the others through pointers, which need not be
+compiled for that). The cache is safe for two writers (shading.jit). Otherwise everything
+missing is compiled here.
 
 The helper is sent plain data (the packed System, the scene, the cloth model), never numba
 objects. Its jobs are named `module:function`. Whatever it fails to do is compiled here
@@ -17,6 +19,7 @@ later: a failed helper costs time, never correctness. An interrupted run kills i
 """
 from __future__ import annotations
 
+import contextlib
 import importlib
 import pickle
 import subprocess
@@ -29,6 +32,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from .integrators import stepping_kernel
 from .progress import bar, counter
 
 # The simulation's kernels with their cold compile CPU times in seconds, one after the other
@@ -43,11 +47,14 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.colliders:_collide_range": 2.7,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
                    "pipeline.forces:internal_forces": 5.0,
+                   "pipeline.forces:fem_internal_forces": 1.5,
                    "pipeline.self_collision:self_collide": 3.1,
                    "pipeline.constraints:limit_stretch": 2.5,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.45,
                    "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
-                   "pipeline.wind:_band": 3.3, "pipeline.fem:_band": 8.0}
+                   "pipeline.wind:_band": 3.3, "pipeline.fem:_triangles": 3.7,
+                   "pipeline.fem:_hinges": 4.0,
+                   "pipeline.fem:fem_filtered_jacobian_product": 1.5}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
 # (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
@@ -59,10 +66,13 @@ CONTENTION = 1.25
 
 @dataclass
 class Job:
-    """One kernel to compile: `module:function` and arguments of the types it is called with."""
+    """One kernel to compile: `module:function` and arguments of the types it is called with;
+    `linked`: the stepping kernel calls it directly, not through a pointer (compiled in this
+    process before the stepping kernel, which reuses it)."""
 
     name: str
     args: tuple
+    linked: bool = False
 
     def dispatcher(self):
         module, function = self.name.split(":")
@@ -105,35 +115,53 @@ def kernel_pointers(system) -> list:
 
 
 def sim_jobs(system) -> list[Job]:
-    """The kernels every integrator calls once per step, with arguments of the types the
-    integrators pass (self-collision only when the scene turns it on: otherwise numba
+    """The kernels every integrator calls once per step (and a FEM cloth's stability limit),
+    with arguments of the types the integrators pass (self-collision only when the scene turns it on: otherwise numba
     prunes it from the stepping kernel), longest to compile first. Most are called through
     pointers (shading.jit.KernelPointer): jobs of their own, not compiled with their
     callers."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
-    args = {"pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
-            "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
-            "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass, s.slack_speed),
-            "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
+    linked = {"pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
+              "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
+              "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass,
+                                               s.slack_speed),
+              "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
     if s.wind is None:  # pruned from the stepping kernel
-        del args["pipeline.wind:add_wind_force"]
+        del linked["pipeline.wind:add_wind_force"]
+    apart = {}
+    if s.fem is not None:  # the stability limit's (system.stability_limit)
+        apart["pipeline.fem:fem_filtered_jacobian_product"] = (s.fem.x_rest, s.fem, x, f)
     for pointer in kernel_pointers(s):
         disp = pointer.dispatcher
-        args[f"{disp.py_func.__module__}:{disp.py_func.__name__}"] = pointer.argtypes
-    return [Job(n, args[n]) for n in sorted(args, key=COMPILE_SECONDS.get, reverse=True)]
+        apart[f"{disp.py_func.__module__}:{disp.py_func.__name__}"] = pointer.argtypes
+    jobs = [Job(n, a, True) for n, a in linked.items()] + [Job(n, a) for n, a in apart.items()]
+    return sorted(jobs, key=lambda job: COMPILE_SECONDS[job.name], reverse=True)
+
+
+def stepping_job(integrator: str, system) -> Job:
+    """The stepping kernel of `integrator` for `system`, typed as its State calls it."""
+    from .integrators import integrator_module
+
+    kernel = stepping_kernel(integrator)
+    state = integrator_module(integrator).State(system)
+    return Job(f"{kernel.py_func.__module__}:{kernel.py_func.__name__}",
+               state.arguments(system, 0, 0))
 
 
 def split(jobs: list[Job], render: bool, step: bool) -> tuple[list[Job], list[Job], bool]:
-    """(this process's jobs, the helper's, whether to start the helper): each job, longest
-    first, to the side where estimate_seconds ends sooner, this process ending with the
-    stepping kernel and the helper with the renderer's (when `render`); the helper only
-    when that beats compiling everything here, two compiles at once being slower."""
+    """(this process's jobs, the helper's, whether to start the helper): the stepping
+    kernel's linked callees here, each other job, longest first, to the side where
+    estimate_seconds ends sooner, this process ending with the stepping kernel (`step`)
+    and the helper with the renderer's (`render`); the helper only when that beats
+    compiling everything here, two compiles at once being slower."""
     alone = estimate_seconds(jobs, [], render, step, False)
-    here: list[Job] = []
+    here = [job for job in jobs if job.linked]
     helper: list[Job] = []
     for job in jobs:
+        if job.linked:
+            continue
         if (estimate_seconds(here + [job], helper, render, step, True)
                 <= estimate_seconds(here, helper + [job], render, step, True)):
             here.append(job)
@@ -168,60 +196,66 @@ class RenderJob:
                    for sig, *_ in _cache_index(fragment_stage))
 
 
-def _stepping_cached(sim) -> bool:
-    """Whether the integrator's stepping kernel is cached for this scene's System type."""
-    disp = sim.stepping_kernel
-    system_type = disp.typeof_pyval(sim.system)
-    return (any(sig and sig[0] == system_type for sig in disp.overloads)
-            or any(sig and sig[0] == system_type for sig, *_ in _cache_index(disp)))
-
-
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool,
                      two_processes: bool) -> float:
     """The first-run message's estimate (on this 2-core machine, idle): in two processes,
-    both simulation shares (the helper's from HELPER_START), then the stepping kernel here
-    while the helper compiles the renderer's (`render`); else all of it in this process."""
+    this process's share then the stepping kernel, while the helper (from HELPER_START)
+    compiles its share then the renderer's (`render`); else all of it in this process."""
     mine = sum(COMPILE_SECONDS[j.name] for j in here)
     theirs = sum(COMPILE_SECONDS[j.name] for j in helper)
     stepping = STEP_SECONDS if step else 0.0
     rendering = RENDER_SECONDS if render else 0.0
     if two_processes:
-        helper_done = HELPER_START + theirs
-        return CONTENTION * max(max(mine, helper_done) + stepping, helper_done + rendering)
+        return CONTENTION * max(mine + stepping, HELPER_START + theirs + rendering)
     return mine + theirs + stepping + rendering
 
 
 FIRST_RUN = "compiling kernels for this machine (first run only{})"
-OURS = ("pipeline", "shading")  # the packages whose kernels CompileWatch counts
+OURS = ("pipeline", "shading")  # the packages whose kernels the watch counts
 
 
-class CompileWatch:
-    """Numba compiling in this process before the warm-up can start: a FEM cloth's
-    stability limit and a mesh collider's distance grid are computed while the Simulation
-    is built, and a first run compiles their kernels there (about 16 s for the FEM's
-    element passes, 2026-11-24). Inside `with`, the first compile says the first-run
-    message (`say`), `progress` counts our kernels compiled on stderr, and `seconds` sums
-    the time spent compiling (numba's library functions included), for the summary."""
+class FirstRun:
+    """A first run's compiling, around building the Simulation (the CLI's render):
 
-    def __init__(self, say: Callable[[str], None] | None = None, progress: bool = False):
-        self.say, self.progress = say, progress
+        with FirstRun(integrator, render, say, progress) as first:
+            sim = Simulation(scene, prepare=first.start)
+            first.finish(sim)
+        first.seconds  # all the compiling, for the summary
+
+    `start` (called by the Simulation once its model and System are built, before its
+    stability limit: a FEM cloth's calls the element kernels) compiles the kernels numba
+    has not cached, the scene's `integrator`'s stepping kernel among them, in two processes
+    when that is sooner, the helper going on with the renderer's (`render`: a callable
+    making the RenderJob from the cloth model, or None). `finish` waits for the helper;
+    leaving the `with` early kills it.
+    A compile outside them (a mesh collider's distance grid while the System is built) is
+    watched: the first says the first-run message (`say`), `progress` counts our kernels on
+    stderr, and its time counts in `seconds`."""
+
+    def __init__(self, integrator: str, render: Callable[[Any], RenderJob] | None = None,
+                 say: Callable[[str], None] | None = None, progress: bool = False):
+        self.integrator, self.render, self.say, self.progress = integrator, render, say, progress
         self.seconds = 0.0
         self.said = False
-        self._kernels = None
+        self._inside = False  # in start or finish, which time their own compiling
         self._depth = 0
-        self._start = 0.0
+        self._since = 0.0
+        self._watched = None  # the count of kernels compiled outside start and finish
+        self._bar = None
+        self._helper: subprocess.Popen | None = None
+        self._reader: threading.Thread | None = None
 
-    def __enter__(self) -> CompileWatch:
+    def __enter__(self) -> FirstRun:
         from numba.core import event
 
-        watch = self
+        first = self
 
         class Listener(event.Listener):  # numba calls it in the compiling thread
             def on_start(self, ev) -> None:
-                watch._begin()
+                first._begin()
 
             def on_end(self, ev) -> None:
-                watch._end(ev.data["dispatcher"].py_func.__module__.split(".")[0] in OURS)
+                first._end(ev.data["dispatcher"].py_func.__module__.split(".")[0] in OURS)
 
         self._listener = Listener()
         event.register("numba:compile", self._listener)
@@ -231,115 +265,140 @@ class CompileWatch:
         from numba.core import event
 
         event.unregister("numba:compile", self._listener)
-        if self._kernels is not None:
-            self._kernels.close()
+        self._close_watched()
+        if self._helper is not None:  # left early (an error, a signal): the helper goes too
+            self._helper.kill()
+            self._helper.wait()
+            self._helper.stdout.close()
+        if self._bar is not None:
+            self._bar.close()
 
+    # --- compiles outside start and finish ---------------------------------------------
     def _begin(self) -> None:
+        if self._inside:
+            return
         if self._depth == 0:
             if not self.said:
                 self.said = True
                 if self.say is not None:
                     self.say(FIRST_RUN.format(""))
-                self._kernels = counter("compile", "kernel", self.progress)
-            self._start = time.perf_counter()
+            if self._watched is None and self._bar is None:
+                self._watched = counter("compile", "kernel", self.progress)
+            self._since = time.perf_counter()
         self._depth += 1
 
     def _end(self, ours: bool) -> None:
+        if self._inside:
+            return
         self._depth -= 1
-        if ours:  # not numba's own library functions compiled along with them
-            self._kernels.update(1)
+        if ours and self._watched is not None:  # not numba's own library functions
+            self._watched.update(1)
         if self._depth == 0:
-            self.seconds += time.perf_counter() - self._start
+            self.seconds += time.perf_counter() - self._since
 
+    def _close_watched(self) -> None:
+        if self._watched is not None:
+            self._watched.close()
+            self._watched = None
 
-def warm_up(sim, render: RenderJob | None, say: Callable[[str], None] | None = None,
-            progress: bool = False, announced: bool = False) -> float:
-    """Compile what the scene's simulation (and `render`, if given) need and numba has not
-    cached, in two processes when both sides need it. `say` gets the first-run message
-    (`announced`: a CompileWatch said it already); `progress` shows a bar of the kernels
-    compiled on stderr. Returns the seconds spent compiling (0.0 when everything was
-    cached)."""
-    start = time.perf_counter()
-    try:
-        jobs = [j for j in sim_jobs(sim.system) if not j.cached()]
-        step = not _stepping_cached(sim)
-        render_cold = render is not None and not render.cached()
-    except Exception:  # numba's cache layout changed: compile on first use, as before
-        return 0.0
-    if not (jobs or step or render_cold):
-        return 0.0
-    here, helper, two_processes = split(jobs, render_cold, step)
-    if say is not None:
-        seconds = estimate_seconds(here, helper, render_cold, step, two_processes)
-        say(f"compiling the other kernels (about {seconds:.0f} s)" if announced
-            else FIRST_RUN.format(f", about {seconds:.0f} s"))
-    kernels = bar(len(jobs) + int(step) + int(render_cold), "compile", "kernel", progress, 0)
-    try:
-        if two_processes:
-            _in_two_processes(sim, here, helper, step, render if render_cold else None,
-                              kernels)
-        else:
-            for job in jobs:
+    @contextlib.contextmanager
+    def _own(self):
+        """A phase of start or finish: its wall time is compiling time."""
+        self._close_watched()
+        self._inside = True
+        since = time.perf_counter()
+        try:
+            yield
+        finally:
+            self._inside = False
+            self.seconds += time.perf_counter() - since
+
+    # --- the two phases ---------------------------------------------------------------
+    def start(self, model, system) -> None:
+        """Compile the missing simulation kernels of `system` and the stepping kernel (this
+        process's share and the helper's, which then goes on with the renderer's); return
+        once the simulation's are all compiled."""
+        try:
+            jobs = [j for j in sim_jobs(system) if not j.cached()]
+            stepping = stepping_job(self.integrator, system)
+            step = not stepping.cached()
+            render = self.render(model) if self.render is not None else None
+            if render is not None and render.cached():
+                render = None
+        except Exception:  # numba's cache layout changed: compile on first use, as before
+            return
+        if not (jobs or step or render):
+            return
+        with self._own():
+            here, helper, two_processes = split(jobs, render is not None, step)
+            if self.say is not None:
+                seconds = estimate_seconds(here, helper, render is not None, step,
+                                           two_processes)
+                self.say(f"compiling the other kernels (about {seconds:.0f} s)" if self.said
+                         else FIRST_RUN.format(f", about {seconds:.0f} s"))
+                self.said = True
+            self._bar = bar(len(jobs) + int(step) + int(render is not None), "compile",
+                            "kernel", self.progress, 0)
+            ready = self._start_helper(helper, render) if two_processes else None
+            # the stepping kernel from its arguments' types: the kernels it calls through
+            # pointers need not be compiled yet (the helper's may not be)
+            for job in here + ([stepping] if step else []):
                 job.compile()
-                kernels.update(1)
-            if step:
-                sim.compile_kernels()
-                kernels.update(1)
-            if render_cold:
+                self._bar.update(1)
+            if ready is not None:
+                ready.wait()
+            elif render is not None:
                 render.run()
-                kernels.update(1)
-    finally:
-        kernels.close()
-    return time.perf_counter() - start
+                self._bar.update(1)
 
+    def finish(self, sim) -> None:
+        """Wait for the helper's renderer; compile the stepping kernel if the Simulation
+        chose another integrator (fidelity auto)."""
+        if self._bar is None:  # nothing was missing, or start failed
+            return
+        with self._own():
+            sim.compile_kernels()  # at once if start compiled it
+            if self._helper is not None:
+                self._helper.wait()
+                self._reader.join()
+                self._helper.stdout.close()
+                self._helper = None
+            self._bar.close()
+            self._bar = None
 
-def _in_two_processes(sim, here: list[Job], helper: list[Job], step: bool,
-                      render: RenderJob | None, kernels) -> None:
-    """Both shares at once; the helper reports each kernel it finishes on its stdout. This
-    process compiles the stepping kernel last (if `step`: not cached), once the helper's
-    simulation kernels it calls are cached."""
-    payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
-    # Run from the folder holding this package: `-m` puts the working folder first on the
-    # path, and a checkout there (a user's clone beside the installed package) would be
-    # imported instead, its kernels cached apart from ours (numba keys the cache on the
-    # source file's path).
-    root = Path(__file__).resolve().parent.parent
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], cwd=root,
-                            stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                            stderr=subprocess.DEVNULL)
-    simulation_ready = threading.Event()
+    def _start_helper(self, helper: list[Job], render: RenderJob | None) -> threading.Event:
+        """Start the helper on its jobs and `render`; the event is set once its simulation
+        kernels are compiled (or it died). It reports each kernel it finishes on its
+        stdout."""
+        payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
+        # Run from the folder holding this package: `-m` puts the working folder first on
+        # the path, and a checkout there (a user's clone beside the installed package) would
+        # be imported instead, its kernels cached apart from ours (numba keys the cache on
+        # the source file's path).
+        root = Path(__file__).resolve().parent.parent
+        proc = subprocess.Popen([sys.executable, "-m", "pipeline.warmup"], cwd=root,
+                                stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL)
+        self._helper = proc
+        ready = threading.Event()
+        kernels = self._bar
 
-    def follow() -> None:  # the helper's reports, until it ends (or dies)
-        for line in proc.stdout:
-            if line.strip() == SIMULATION_DONE:
-                simulation_ready.set()
-            else:
-                kernels.update(1)
-        simulation_ready.set()
+        def follow() -> None:  # the helper's reports, until it ends (or dies)
+            for line in proc.stdout:
+                if line.strip() == SIMULATION_DONE:
+                    ready.set()
+                else:
+                    kernels.update(1)
+            ready.set()
 
-    reader = threading.Thread(target=follow, name="warmup-helper", daemon=True)
-    reader.start()
-    try:
+        self._reader = threading.Thread(target=follow, name="warmup-helper", daemon=True)
+        self._reader.start()
         try:
             proc.stdin.write(payload)
             proc.stdin.close()
-        except OSError:  # the helper died at once: its share is compiled below, on use
+        except OSError:  # the helper died at once: its share is compiled on use
             pass
-        for job in here:
-            job.compile()
-            kernels.update(1)
-        simulation_ready.wait()
-        if step:
-            sim.compile_kernels()
-            kernels.update(1)
-        proc.wait()
-        reader.join()
-    except BaseException:
-        proc.kill()
-        proc.wait()
-        raise
-    finally:
-        proc.stdout.close()
+        return ready
 
 
 SIMULATION_DONE = b"simulation"

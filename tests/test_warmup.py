@@ -4,7 +4,9 @@ next run finds every kernel cached."""
 from __future__ import annotations
 
 import io
+import itertools
 import json
+import random
 import re
 import subprocess
 import sys
@@ -61,41 +63,67 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
     assert (tmp_path / "cold.gif").read_bytes() == (tmp_path / "warm.gif").read_bytes()
 
 
-# never in one scene's jobs: a table has the mesh's projection or its stand-in; the FEM has
-# no stretch limit
-EXCLUSIVE = [{"pipeline.colliders.mesh:project", "pipeline.colliders:_unmoved"},
-             {"pipeline.fem:_band", "pipeline.constraints:limit_stretch"}]
+# the jobs a scene can have (warmup.sim_jobs): these always, a model's, a collider table's
+# mesh projection or its stand-in, wind or not, self-collision or not
+COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
+          "pipeline.system:motion_summary", "pipeline.system:energy_guard",
+          "pipeline.reach:reach_check"]
+MODELS = [["pipeline.forces:internal_forces", "pipeline.constraints:limit_stretch"],
+          ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles", "pipeline.fem:_hinges",
+           "pipeline.fem:fem_filtered_jacobian_product"]]
+TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
+WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
+SELF = [[], ["pipeline.self_collision:self_collide"]]
+# called by the stepping kernel directly, not through a pointer
+LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
+          "pipeline.system:energy_guard", "pipeline.reach:reach_check"}
+
+
+def _scenes() -> list[list[str]]:
+    return [COMMON + m + t + w + c for m, t, w, c in itertools.product(MODELS, TABLES, WINDS, SELF)]
+
+
+def _jobs(names) -> list[warmup.Job]:
+    return sorted((warmup.Job(n, (), n in LINKED) for n in sorted(names)),
+                  key=lambda j: -warmup.COMPILE_SECONDS[j.name])
+
+
+def test_every_job_of_a_scene_has_an_estimate():
+    assert set().union(*_scenes()) == set(warmup.COMPILE_SECONDS)
 
 
 def test_split_balances_the_two_processes():
-    names = list(warmup.COMPILE_SECONDS)
-    for mask in range(1, 2 ** len(names)):
-        chosen_names = {n for k, n in enumerate(names) if mask >> k & 1}
-        if any(pair <= chosen_names for pair in EXCLUSIVE):
-            continue
-        jobs = sorted((warmup.Job(n, ()) for n in sorted(chosen_names)),
-                      key=lambda j: -warmup.COMPILE_SECONDS[j.name])
-        for render in (False, True):
-            for step in (False, True):
-                here, helper, two = warmup.split(jobs, render, step)
-                assert sorted(j.name for j in here + helper) == sorted(j.name for j in jobs)
-                alone = warmup.estimate_seconds(jobs, [], render, step, False)
-                best = min(warmup.estimate_seconds(
-                    [j for k, j in enumerate(jobs) if side >> k & 1],
-                    [j for k, j in enumerate(jobs) if not side >> k & 1], render, step, True)
-                    for side in range(2 ** len(jobs)))
-                chosen = warmup.estimate_seconds(here, helper, render, step, two)
-                # the helper only when it is faster than one process
-                assert chosen <= alone and (two or not helper)
-                # longest first to the side that ends sooner: near the best split
-                assert chosen <= min(alone, best * 4 / 3) + 1e-9
+    """On every scene's kernels, all cold and 200 random parts of them (the rest cached):
+    the split is within 4/3 of the best one (every way of sharing them, the linked callees
+    here) and beats one process when it starts the helper."""
+    rng = random.Random(15)
+    for names in _scenes():
+        parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(200)]
+        for part in filter(None, parts):
+            jobs = _jobs(part)
+            free = [j for j in jobs if not j.linked]
+            linked = [j for j in jobs if j.linked]
+            for render in (False, True):
+                for step in (False, True):
+                    here, helper, two = warmup.split(jobs, render, step)
+                    assert sorted(j.name for j in here + helper) == sorted(part)
+                    assert not any(j.linked for j in helper)
+                    alone = warmup.estimate_seconds(jobs, [], render, step, False)
+                    best = min(warmup.estimate_seconds(
+                        linked + [j for k, j in enumerate(free) if side >> k & 1],
+                        [j for k, j in enumerate(free) if not side >> k & 1], render, step,
+                        True) for side in range(2 ** len(free)))
+                    chosen = warmup.estimate_seconds(here, helper, render, step, two)
+                    # the helper only when it is faster than one process
+                    assert chosen <= alone and (two or not helper)
+                    # longest first to the side that ends sooner: near the best split
+                    assert chosen <= min(alone, best * 4 / 3) + 1e-9
     # the README scene: the renderer and every simulation kernel cold -> two processes
-    jobs = [warmup.Job(n, ()) for n in names if n != "pipeline.self_collision:self_collide"
-            and n != "pipeline.wind:add_wind_force"]
-    assert warmup.split(jobs, True, True)[2]
+    readme = _jobs(COMMON + MODELS[0] + TABLES[1])
+    assert warmup.split(readme, True, True)[2]
     # one small kernel and nothing else: compiled here
-    assert warmup.split([warmup.Job("pipeline.system:energy_guard", ())], False, False) == (
-        [warmup.Job("pipeline.system:energy_guard", ())], [], False)
+    small = [warmup.Job("pipeline.system:energy_guard", (), True)]
+    assert warmup.split(small, False, False) == (small, [], False)
 
 
 class _Counted:
@@ -112,11 +140,15 @@ class _Counted:
 
 
 class _Job(warmup.Job):
+    def __init__(self, name, cached=False):
+        super().__init__(name, ())
+        self.is_cached, self.compiled = cached, 0
+
     def cached(self):
-        return False
+        return self.is_cached
 
     def compile(self):
-        pass
+        self.compiled += 1
 
 
 class _Helper:
@@ -136,27 +168,29 @@ class _Helper:
 
 @pytest.mark.parametrize("step", [False, True])
 def test_the_bar_counts_each_kernel_compiled_once(monkeypatch, step):
-    """The bar's total is what gets compiled: in two processes too, the stepping kernel
-    counts only when it is not cached (it was always counted: the bar overshot)."""
-    bars, stepped = [], []
+    """The bar's total is what gets compiled, in two processes too: the stepping kernel
+    counts only when it is not cached, and is compiled once, in start."""
+    bars, finished = [], []
+    stepping = _Job("pipeline.integrators.verlet:advance", cached=not step)
     monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
-    monkeypatch.setattr(warmup, "sim_jobs", lambda system: [_Job("a", ()), _Job("b", ())])
-    monkeypatch.setattr(warmup, "_stepping_cached", lambda sim: not step)
+    monkeypatch.setattr(warmup, "sim_jobs", lambda system: [_Job("a"), _Job("b")])
+    monkeypatch.setattr(warmup, "stepping_job", lambda integrator, system: stepping)
     monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs[:1], jobs[1:], True))
     monkeypatch.setattr(warmup.subprocess, "Popen", _Helper)
-    sim = SimpleNamespace(system=None, compile_kernels=lambda: stepped.append(1))
-    warmup.warm_up(sim, None)
+    sim = SimpleNamespace(compile_kernels=lambda: finished.append(1))
+    with warmup.FirstRun("verlet") as first:
+        first.start(None, None)
+        first.finish(sim)
     assert bars[0].total == 2 + step and bars[0].done == bars[0].total
-    assert len(stepped) == step
+    assert stepping.compiled == step and finished == [1]
 
 
-def test_compiles_before_the_warm_up_are_said_counted_and_timed(monkeypatch):
-    """A compile while the Simulation is built (a FEM cloth's stability limit) says the
-    first-run message once, counts each kernel (callee included) and is timed; kernels
-    already compiled say and count nothing."""
+def _fresh_kernels():
+    """Two kernels numba has not compiled (not cached: compiled in the test whatever
+    numba's cache holds), outer calling inner."""
     from numba import njit
 
-    @njit  # not cached: compiled in this test whatever numba's cache holds
+    @njit
     def inner(a):
         return max(a, 0.5) * 2.0  # max: numba compiles its own overload too (not counted)
 
@@ -164,15 +198,47 @@ def test_compiles_before_the_warm_up_are_said_counted_and_timed(monkeypatch):
     def outer(a):
         return inner(a) + 1.0
 
+    return outer
+
+
+def test_compiles_outside_the_warm_up_are_said_counted_and_timed(monkeypatch):
+    """A compile while the Simulation is built and before start (a mesh collider's
+    distance grid) says the first-run message once, counts each kernel (callee included)
+    and is timed; kernels already compiled say and count nothing."""
+    outer = _fresh_kernels()
     said = []
     counted = _Counted(None)
     monkeypatch.setattr(warmup, "counter", lambda *a: counted)
     monkeypatch.setattr(warmup, "OURS", (__name__.split(".")[0],))  # this file's kernels
-    with warmup.CompileWatch(said.append, True) as watch:
+    with warmup.FirstRun("verlet", None, said.append, True) as first:
         assert outer(1.0) == 3.0
     assert said == [warmup.FIRST_RUN.format("")]
-    assert watch.said and watch.seconds > 0.0
+    assert first.said and first.seconds > 0.0
     assert counted.done == 2  # outer, and inner compiled while typing it: not numba's max
-    with warmup.CompileWatch(said.append, True) as again:
+    with warmup.FirstRun("verlet", None, said.append, True) as again:
         assert outer(2.0) == 5.0
     assert len(said) == 1 and not again.said and again.seconds == 0.0
+
+
+def test_compiles_inside_start_are_not_watched_again(monkeypatch):
+    """A kernel compiled by start counts on start's bar and in its time, not a second time
+    as a compile outside it; start says the message with its estimate."""
+    outer = _fresh_kernels()
+
+    class Compiling(_Job):
+        def compile(self):
+            assert outer(1.0) == 3.0
+
+    said, watched, bars = [], [], []
+    monkeypatch.setattr(warmup, "counter", lambda *a: watched.append(1) or _Counted(None))
+    monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
+    monkeypatch.setattr(warmup, "OURS", (__name__.split(".")[0],))
+    monkeypatch.setattr(warmup, "sim_jobs",
+                        lambda system: [Compiling("pipeline.system:energy_guard")])
+    monkeypatch.setattr(warmup, "stepping_job", lambda integrator, system: _Job("s", True))
+    monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs, [], False))
+    with warmup.FirstRun("verlet", None, said.append, True) as first:
+        first.start(None, None)
+        first.finish(SimpleNamespace(compile_kernels=lambda: None))
+    assert said == [warmup.FIRST_RUN.format(", about 0 s")]  # energy_guard's 0.3 s
+    assert watched == [] and bars[0].done == bars[0].total == 1 and first.seconds > 0.0

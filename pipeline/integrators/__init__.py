@@ -2,9 +2,11 @@
 
 A module defines NAME, CONDITIONALLY_STABLE (True when its step must stay below the explicit
 stability limit of the lattice: the Simulation then warns above it) and a `State(system)`
-class with `x` (3, N) positions,
-`velocity(system)` and `advance(system, steps) -> (steps done, kinetic energy, bound)`,
-where fewer steps done than asked means the divergence guard tripped. Modules are found by
+class with `x` (3, N) positions, `velocity(system)`,
+`advance(system, steps, first_step) -> (steps done, kinetic energy, bound)`, where fewer
+steps done than asked means the divergence guard tripped, and `arguments(system, steps,
+first_step)`, what `advance` passes to the module's numba kernel `advance` (a first run
+compiles it from their types: pipeline.warmup). Modules are found by
 name: `state_class("verlet")` imports `pipeline.integrators.verlet` ('-' becomes '_':
 `state_class("implicit-euler")` imports `pipeline.integrators.implicit_euler`).
 
@@ -27,6 +29,7 @@ orders, stability limits and work-precision charts, and which one to pick.
 from __future__ import annotations
 
 import importlib
+import sys
 from types import ModuleType
 
 from ..scene import INTEGRATORS
@@ -42,3 +45,9 @@ def integrator_module(name: str) -> ModuleType:
 def state_class(name: str):
     """The State class of the integrator called `name` (as in the scene)."""
     return integrator_module(name).State
+
+
+def stepping_kernel(name: str):
+    """The numba kernel that steps a scene with the integrator called `name`: the `advance`
+    of the module that defines its State's advance (symplectic Euler shares Euler's)."""
+    return sys.modules[state_class(name).advance.__module__].advance

@@ -36,9 +36,13 @@ class VelocityState:
     def velocity(self, system: System) -> np.ndarray:
         return self.v.copy()
 
+    def arguments(self, system: System, steps: int, first_step: int) -> tuple:
+        """The stepping kernel's arguments."""
+        return (system, self.x, self.v, self.last, self.predicted, self.force, steps, first_step,
+                self.symplectic)
+
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.v, self.last, self.predicted, self.force, steps,
-                       first_step, self.symplectic)
+        return advance(*self.arguments(system, steps, first_step))
 
 
 class State(VelocityState):

@@ -50,10 +50,14 @@ class State(VelocityState):
             spring_fields.py_func(system), self.unit, self.alpha, self.buffer, self.work, 0.0),
             types.int64)
 
+    def arguments(self, system: System, steps: int, first_step: int) -> tuple:
+        """The stepping kernel's arguments."""
+        return (system, self.x, self.v, self.last, self.predicted, self.force, self.unit,
+                self.alpha, self.buffer, self.work, self.iterations, self.solve, steps,
+                first_step)
+
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.v, self.last, self.predicted, self.force,
-                       self.unit, self.alpha, self.buffer, self.work, self.iterations,
-                       self.solve, steps, first_step)
+        return advance(*self.arguments(system, steps, first_step))
 
 
 @njit(cache=True, nogil=True)

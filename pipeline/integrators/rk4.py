@@ -28,9 +28,13 @@ class State(VelocityState):
         self.sum_x = np.zeros_like(self.x)
         self.sum_v = np.zeros_like(self.x)
 
+    def arguments(self, system: System, steps: int, first_step: int) -> tuple:
+        """The stepping kernel's arguments."""
+        return (system, self.x, self.v, self.last, self.predicted, self.force, self.stage_x,
+                self.stage_v, self.sum_x, self.sum_v, steps, first_step)
+
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.v, self.last, self.predicted, self.force,
-                       self.stage_x, self.stage_v, self.sum_x, self.sum_v, steps, first_step)
+        return advance(*self.arguments(system, steps, first_step))
 
 
 @njit(cache=True, nogil=True, parallel=True)

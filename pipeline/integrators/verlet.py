@@ -31,8 +31,12 @@ class State:
     def velocity(self, system: System) -> np.ndarray:
         return (self.x - self.last) / system.dt
 
+    def arguments(self, system: System, steps: int, first_step: int) -> tuple:
+        """The stepping kernel's arguments."""
+        return system, self.x, self.last, self.v, self.force, steps, first_step
+
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.last, self.v, self.force, steps, first_step)
+        return advance(*self.arguments(system, steps, first_step))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)

@@ -43,9 +43,13 @@ class State(VelocityState):
         self.multiplier = (np.zeros(system.rest.shape) if fem is None
                            else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS, fem.nw * fem.nh)))
 
+    def arguments(self, system: System, steps: int, first_step: int) -> tuple:
+        """The stepping kernel's arguments."""
+        return (system, self.x, self.v, self.last, self.force, self.multiplier, steps, first_step,
+                ITERATIONS)
+
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
-        return advance(system, self.x, self.v, self.last, self.force, self.multiplier, steps,
-                       first_step, ITERATIONS)
+        return advance(*self.arguments(system, steps, first_step))
 
 
 @njit(cache=True, nogil=True)
