@@ -346,7 +346,7 @@ def prepare_jacobian(x, fem, springs, unit, alpha):
         spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def jacobian_product(x, y, fem, springs, unit, alpha, buffer, out):
     """out = K y, K the elastic force Jacobian at x (negative semi-definite: compressed
     springs, or the FEM's filtered Hessian)."""

@@ -54,7 +54,9 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
                    "pipeline.wind:_band": 3.3, "pipeline.fem:_triangles": 3.7,
                    "pipeline.fem:_hinges": 4.0,
-                   "pipeline.fem:fem_filtered_jacobian_product": 1.5}
+                   "pipeline.fem:fem_filtered_jacobian_product": 1.5,
+                   "pipeline.integrators.implicit_euler:solve_step": 3.6,
+                   "pipeline.forces:jacobian_product": 4.0}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
 # (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
@@ -140,14 +142,20 @@ def sim_jobs(system) -> list[Job]:
     return sorted(jobs, key=lambda job: COMPILE_SECONDS[job.name], reverse=True)
 
 
-def stepping_job(integrator: str, system) -> Job:
-    """The stepping kernel of `integrator` for `system`, typed as its State calls it."""
+def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
+    """The stepping kernel of `integrator` for `system`, typed as its State calls it, and
+    the kernels its State holds pointers to (implicit Euler's solve and Jacobian product)."""
+    from shading.jit import KernelPointer
+
     from .integrators import integrator_module
 
     kernel = stepping_kernel(integrator)
     state = integrator_module(integrator).State(system)
-    return Job(f"{kernel.py_func.__module__}:{kernel.py_func.__name__}",
-               state.arguments(system, 0, 0))
+    pointers = [p for p in vars(state).values() if isinstance(p, KernelPointer)]
+    return (Job(f"{kernel.py_func.__module__}:{kernel.py_func.__name__}",
+                state.arguments(system, 0, 0)),
+            [Job(f"{p.dispatcher.py_func.__module__}:{p.dispatcher.py_func.__name__}",
+                 p.argtypes) for p in pointers])
 
 
 def split(jobs: list[Job], render: bool, step: bool) -> tuple[list[Job], list[Job], bool]:
@@ -319,8 +327,9 @@ class FirstRun:
         process's share and the helper's, which then goes on with the renderer's); return
         once the simulation's are all compiled."""
         try:
-            jobs = [j for j in sim_jobs(system) if not j.cached()]
-            stepping = stepping_job(self.integrator, system)
+            stepping, pointed = integrator_jobs(self.integrator, system)
+            jobs = sorted((j for j in sim_jobs(system) + pointed if not j.cached()),
+                          key=lambda job: COMPILE_SECONDS[job.name], reverse=True)
             step = not stepping.cached()
             render = self.render(model) if self.render is not None else None
             if render is not None and render.cached():

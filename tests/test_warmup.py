@@ -74,13 +74,16 @@ MODELS = [["pipeline.forces:internal_forces", "pipeline.constraints:limit_stretc
 TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
+INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
+                    "pipeline.forces:jacobian_product"]]  # what the States point to
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
           "pipeline.system:energy_guard", "pipeline.reach:reach_check"}
 
 
 def _scenes() -> list[list[str]]:
-    return [COMMON + m + t + w + c for m, t, w, c in itertools.product(MODELS, TABLES, WINDS, SELF)]
+    return [COMMON + m + t + w + c + i for m, t, w, c, i in
+            itertools.product(MODELS, TABLES, WINDS, SELF, INTEGRATORS)]
 
 
 def _jobs(names) -> list[warmup.Job]:
@@ -173,8 +176,9 @@ def test_the_bar_counts_each_kernel_compiled_once(monkeypatch, step):
     bars, finished = [], []
     stepping = _Job("pipeline.integrators.verlet:advance", cached=not step)
     monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
-    monkeypatch.setattr(warmup, "sim_jobs", lambda system: [_Job("a"), _Job("b")])
-    monkeypatch.setattr(warmup, "stepping_job", lambda integrator, system: stepping)
+    monkeypatch.setattr(warmup, "sim_jobs", lambda system: [
+        _Job("pipeline.reach:reach_check"), _Job("pipeline.system:energy_guard")])
+    monkeypatch.setattr(warmup, "integrator_jobs", lambda integrator, system: (stepping, []))
     monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs[:1], jobs[1:], True))
     monkeypatch.setattr(warmup.subprocess, "Popen", _Helper)
     sim = SimpleNamespace(compile_kernels=lambda: finished.append(1))
@@ -235,7 +239,8 @@ def test_compiles_inside_start_are_not_watched_again(monkeypatch):
     monkeypatch.setattr(warmup, "OURS", (__name__.split(".")[0],))
     monkeypatch.setattr(warmup, "sim_jobs",
                         lambda system: [Compiling("pipeline.system:energy_guard")])
-    monkeypatch.setattr(warmup, "stepping_job", lambda integrator, system: _Job("s", True))
+    monkeypatch.setattr(warmup, "integrator_jobs",
+                        lambda integrator, system: (_Job("s", True), []))
     monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs, [], False))
     with warmup.FirstRun("verlet", None, said.append, True) as first:
         first.start(None, None)

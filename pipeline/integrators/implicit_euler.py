@@ -43,18 +43,21 @@ class State(VelocityState):
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
-        # the solve, called through a pointer: compiled once per model rather than linked
-        # into (and optimised again in) the stepping kernel of every System type
+        # the solve and the Jacobian product it calls, through pointers: compiled once per
+        # model rather than linked into (and optimised again in) the stepping kernel of
+        # every System type, and apart (a first run compiles them in two processes)
+        springs = spring_fields.py_func(system)
+        self.product = KernelPointer(jacobian_product, (
+            self.x, self.x, system.fem, springs, self.unit, self.alpha, self.buffer, self.x))
         self.solve = KernelPointer(solve_step, (
-            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem,
-            spring_fields.py_func(system), self.unit, self.alpha, self.buffer, self.work, 0.0),
-            types.int64)
+            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem, springs,
+            self.unit, self.alpha, self.buffer, self.work, 0.0, self.product), types.int64)
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
         return (system, self.x, self.v, self.last, self.predicted, self.force, self.unit,
-                self.alpha, self.buffer, self.work, self.iterations, self.solve, steps,
-                first_step)
+                self.alpha, self.buffer, self.work, self.iterations, self.solve, self.product,
+                steps, first_step)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
@@ -70,10 +73,11 @@ def _dot(a, b):
 
 
 @njit(cache=True, nogil=True)
-def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2):
-    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x); mass_factor is
-    1 + h gamma."""
-    jacobian_product(x, y, fem, springs, unit, alpha, buffer, out)
+def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
+           product):
+    """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x, by `product`:
+    forces.jacobian_product); mass_factor is 1 + h gamma."""
+    product(x, y, fem, springs, unit, alpha, buffer, out)
     for ax in range(3):
         for p in range(y.shape[1]):
             out[ax, p] = (0.0 if pinned[p] else
@@ -81,16 +85,18 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma):
+def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma,
+               product):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
     at its start; returns CG iterations. It takes the System's fields (`springs`: see
     forces.spring_fields), so it compiles once per model, not per System type; the
-    stepping kernel calls it through State.solve (a KernelPointer)."""
+    stepping kernel calls it through State.solve, and it calls forces.jacobian_product
+    through `product` (KernelPointers)."""
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
     prepare_jacobian(x, fem, springs, unit, alpha)
-    jacobian_product(x, v, fem, springs, unit, alpha, buffer, q)
+    product(x, v, fem, springs, unit, alpha, buffer, q)
     jacobian_diagonal(x, fem, springs, unit, alpha, diag)
     mass_factor = 1.0 + h * gamma
     for ax in range(3):
@@ -108,7 +114,8 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     rz = _dot(r, z)
     iterations = 0
     while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
-        _apply(x, d, q, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2)
+        _apply(x, d, q, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
+               product)
         dq = _dot(d, q)
         if not dq > 0.0:
             break
@@ -144,7 +151,7 @@ def _update(x, v, last, dv, pinned, dt, predicted):
 
 @njit(cache=True, nogil=True)
 def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, solve,
-            steps, first_step):
+            product, steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     springs = spring_fields(s)
@@ -153,7 +160,7 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
         t = (first_step + step) * s.dt
         total_force(x, v, t, s, force)
         iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, springs, unit,
-                               alpha, buffer, work, gamma)
+                               alpha, buffer, work, gamma, product)
         _update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
