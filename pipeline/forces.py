@@ -2,7 +2,7 @@
 spring (SPEC section 2, step 1), plus the scene's other forces (wind), shared by every
 integrator through `total_force`. With the FEM model (System.fem not None) the springs'
 forces and Jacobians give way to pipeline.fem's (System.kernels.internal points to
-`fem_internal_forces`; the `jacobian_*` functions choose by `fem is None`).
+`fem_internal_forces`; the `jacobian_*` functions test `springs` and `fem`, see below).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
 adds to f and does nothing when its params are None (numba then prunes its code), packed
@@ -325,23 +325,18 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
 # --- the elastic force Jacobian of either model, for implicit Euler ------------------------
 
 
-# They take the fields they read, not the System: `springs` (spring_fields) has the same
-# types in every System, so each compiles once per model (fem None or not), not once per
-# System type (wind, self-collision, ...).
-
-
-@njit(cache=True, nogil=True, inline="always")
-def spring_fields(s):
-    """The System's spring lattice as one argument: (offsets, gather_order, exists, rest,
-    stiffness), for kernels that take fields rather than the System."""
-    return s.offsets, s.gather_order, s.exists, s.rest, s.stiffness
+# They take the fields they read, not the System (`springs`: System.springs, None with the
+# FEM, as `fem` is None with the springs), so each compiles once per model, not once per
+# System type (wind, self-collision, ...). They test `springs is not None` and `fem is not
+# None`: numba prunes such a test only when the argument's type is None, so each model
+# compiles only its own code ("if fem is None: springs else: FEM" compiled both for the FEM).
 
 
 @njit(cache=True, nogil=True)
 def prepare_jacobian(x, fem, springs, unit, alpha):
     """Linearise the elastic forces at x: the classic springs store their per-spring data in
     (unit, alpha) (see spring_jacobian); the FEM needs nothing beyond x."""
-    if fem is None:
+    if springs is not None:
         offsets, _, exists, rest, stiffness = springs
         spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
 
@@ -350,18 +345,18 @@ def prepare_jacobian(x, fem, springs, unit, alpha):
 def jacobian_product(x, y, fem, springs, unit, alpha, buffer, out):
     """out = K y, K the elastic force Jacobian at x (negative semi-definite: compressed
     springs, or the FEM's filtered Hessian)."""
-    if fem is None:
+    if springs is not None:
         offsets, order, _, _, stiffness = springs
         spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out)
-    else:
+    if fem is not None:
         fem_filtered_jacobian_product(x, fem, y, out)
 
 
 @njit(cache=True, nogil=True)
 def jacobian_diagonal(x, fem, springs, unit, alpha, out):
     """out = the diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner."""
-    if fem is None:
+    if springs is not None:
         offsets, _, _, _, stiffness = springs
         spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out)
-    else:
+    if fem is not None:
         fem_jacobian_diagonal(x, fem, out)

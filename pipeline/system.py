@@ -64,6 +64,9 @@ class System(NamedTuple):
     colliders: ColliderTable
     wind: WindParams | None  # None: no wind (pruned from the kernels)
     fem: FemParams | None  # the finite-element model; None: the classic springs
+    # (offsets, gather_order, exists, rest, stiffness) for kernels that take fields, not the
+    # System (the same types in every System: one compile per model); None with the FEM
+    springs: tuple | None
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     scratch: tuple | None  # SelfCollisionScratch.as_tuple(); None: off (pruned from the kernels)
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
@@ -136,6 +139,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         colliders=pack_colliders(scene.colliders),
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),
         fem=model.fem,
+        springs=None,
         needs_velocity=scene.wind is not None,
         scratch=SelfCollisionScratch(model.n).as_tuple() if scene.self_collision else None,
         spring_force=spring_force_buffer(model.n, model.nw),
@@ -145,6 +149,9 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         reach=new_reach(model.n),
         colliders_last=False,
     )
+    if model.fem is None:
+        system = system._replace(springs=(system.offsets, system.gather_order, system.exists,
+                                          system.rest, system.stiffness))
     return system._replace(kernels=step_kernels(system))
 
 

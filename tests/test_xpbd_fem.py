@@ -55,8 +55,7 @@ def test_one_soft_sweep_moves_points_by_dt2_force_over_mass():
     for dt2 in (1e-9, 1e-10):
         y = x.copy()
         lam = np.zeros_like(sim._state.multiplier)
-        springs = (s.offsets, s.gather_order, s.exists, s.rest, s.stiffness)
-        xpbd._solve_constraints(y, lam, s.pinned, s.mass, springs, s.fem, dt2, 1)
+        xpbd._solve_constraints(y, lam, s.pinned, s.mass, s.springs, s.fem, dt2, 1)
         moved = (y - x) / dt2
         error = np.abs(moved - expected).max() / np.abs(expected).max()
         assert error < 1e-3, (dt2, error)  # O(dt2 w k) ~ 1e-4 at 1e-9, roundoff below

@@ -23,7 +23,7 @@ from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 
 from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
-                      spring_fields, spring_force_buffer, total_force)
+                      spring_force_buffer, total_force)
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -46,11 +46,11 @@ class State(VelocityState):
         # the solve and the Jacobian product it calls, through pointers: compiled once per
         # model rather than linked into (and optimised again in) the stepping kernel of
         # every System type, and apart (a first run compiles them in two processes)
-        springs = spring_fields.py_func(system)
+        fem, springs = system.fem, system.springs
         self.product = KernelPointer(jacobian_product, (
-            self.x, self.x, system.fem, springs, self.unit, self.alpha, self.buffer, self.x))
+            self.x, self.x, fem, springs, self.unit, self.alpha, self.buffer, self.x))
         self.solve = KernelPointer(solve_step, (
-            self.x, self.v, self.force, 0.0, system.pinned, system.mass, system.fem, springs,
+            self.x, self.v, self.force, 0.0, system.pinned, system.mass, fem, springs,
             self.unit, self.alpha, self.buffer, self.work, 0.0, self.product), types.int64)
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
@@ -88,8 +88,8 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
 def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma,
                product):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
-    at its start; returns CG iterations. It takes the System's fields (`springs`: see
-    forces.spring_fields), so it compiles once per model, not per System type; the
+    at its start; returns CG iterations. It takes the System's fields (`springs`:
+    System.springs), so it compiles once per model, not per System type; the
     stepping kernel calls it through State.solve, and it calls forces.jacobian_product
     through `product` (KernelPointers)."""
     h2 = h * h
@@ -154,12 +154,11 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
             product, steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
-    springs = spring_fields(s)
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * s.dt
         total_force(x, v, t, s, force)
-        iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, springs, unit,
+        iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, s.springs, unit,
                                alpha, buffer, work, gamma, product)
         _update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)

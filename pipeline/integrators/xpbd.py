@@ -14,8 +14,9 @@ kind, each C_u, C_v, C_s, then the hinges likewise), each applying
 d_lambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~), alpha~ = alpha / dt^2,
 x_i += w_i grad_i C d_lambda, w = 1/m_p (0 when pinned); then the shared position passes
 (self-collision, colliders, Provot on the classic model) and v = (x - x_start) / dt for
-every free point. The model is chosen at compile time (numba prunes `fem is None`): the
-classic kernel does not contain the FEM code.
+every free point. The model is chosen at compile time (numba prunes a test of an argument
+whose type is None: `fem` with the springs, `springs` with the FEM): each kernel contains
+its model's code only.
 State: positions x, velocities v, start-of-step positions last (3, N), multipliers (6, N)
 for the classic springs or (9, N) for the FEM (rows 3 t + (0, 1, 2): C_u, C_v, C_s of the
 triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
@@ -27,7 +28,7 @@ from shading.jit import njit
 
 from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)
-from ..forces import external_force, spring_fields
+from ..forces import external_force
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
 
@@ -88,12 +89,13 @@ def _solve(x, lam, pinned, mass, springs, dt2, iterations):
 
 @njit(cache=True, nogil=True)
 def _solve_constraints(x, lam, pinned, mass, springs, fem, dt2, iterations):
-    """The constraints' projections: the springs' (`springs`: forces.spring_fields)
-    or the FEM's. They take the System's fields, not the System: one compile per model, not
-    per System type."""
-    if fem is None:  # numba prunes the branch not taken: classic scenes get only _solve
+    """The constraints' projections: the springs' (`springs`: System.springs, None with the
+    FEM) or the FEM's. They take the System's fields, not the System: one compile per model,
+    not per System type. numba prunes each test, the argument's type being None, so each
+    model compiles only its own projections."""
+    if springs is not None:
         _solve(x, lam, pinned, mass, springs, dt2, iterations)
-    else:
+    if fem is not None:
         _solve_fem(x, lam, pinned, mass, fem, dt2, iterations)
 
 
@@ -218,7 +220,6 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     h = s.dt
     keep = 1.0 - s.damping
-    springs = spring_fields(s)
     n = x.shape[1]
     kinetic = bound = 0.0
     for step in range(steps):
@@ -231,7 +232,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
                     v[a, p] = keep * v[a, p] + h * (force[a, p] / s.mass[p])
                     x[a, p] += h * v[a, p]
         lam[:] = 0.0
-        _solve_constraints(x, lam, s.pinned, s.mass, springs, s.fem, h * h, iterations)
+        _solve_constraints(x, lam, s.pinned, s.mass, s.springs, s.fem, h * h, iterations)
         position_passes(x, last, s, t)
         for p in range(n):
             if not s.pinned[p]:
