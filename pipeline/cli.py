@@ -490,11 +490,11 @@ def run(args, err: _Errors, source=None) -> int:
             from .warmup import FirstRun, RenderJob
 
             show = progress_enabled(args.quiet)
-            renders = ((lambda model: RenderJob(scene, model, plan.shader, plan.aa))
-                       if plan.kind else None)
+            render_job = ((lambda model: RenderJob(scene, model, plan.shader, plan.aa))
+                          if plan.kind else None)
             # A first run on this machine compiles the kernels, in two processes when it can.
-            with FirstRun(scene.simulation.integrator, renders, err.say if show else None,
-                          show) as first:
+            with FirstRun(scene.simulation.integrator, render_job,
+                          err.say if show else None, show) as first:
                 sim = Simulation(scene, shot_seconds=plan.shot_seconds, prepare=first.start)
                 first.finish(sim)
             return _execute(args, err, scene, plan, sim, writers, golden,

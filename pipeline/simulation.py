@@ -9,9 +9,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import numpy as np
-from shading.jit import argument_types
 
-from .integrators import integrator_module, stepping_kernel
+from .integrators import integrator_module
 from .model import ClothModel, build_model
 from .overlap import resolve_start_inside
 from .scene import Scene, load_scene
@@ -139,20 +138,6 @@ class Simulation:
         from .fidelity import make_plan
 
         return make_plan(self)
-
-    # --- kernels -----------------------------------------------------------------------
-    @property
-    def stepping_kernel(self):
-        """The numba kernel that steps this scene (integrators.stepping_kernel)."""
-        return stepping_kernel(self.integrator)
-
-    def compile_kernels(self) -> None:
-        """Compile (or load from numba's cache) the kernel that steps this scene, from its
-        arguments' types, without stepping: the kernels it calls through pointers
-        (shading.jit.KernelPointer) compile on their first call, not with it."""
-        kernel = self.stepping_kernel
-        kernel.compile(argument_types(
-            kernel, self._state.arguments(self.system, 0, self.step_count)))
 
     # --- stepping ----------------------------------------------------------------------
     def step(self, steps: int = 1) -> None:

@@ -118,10 +118,10 @@ def kernel_pointers(system) -> list:
 
 def sim_jobs(system) -> list[Job]:
     """The kernels every integrator calls once per step (and a FEM cloth's stability limit),
-    with arguments of the types the integrators pass (self-collision only when the scene turns it on: otherwise numba
-    prunes it from the stepping kernel), longest to compile first. Most are called through
-    pointers (shading.jit.KernelPointer): jobs of their own, not compiled with their
-    callers."""
+    with arguments of the types the integrators pass (self-collision only when the scene
+    turns it on: otherwise numba prunes it from the stepping kernel), longest to compile
+    first. Most are called through pointers (shading.jit.KernelPointer): jobs of their
+    own, not compiled with their callers."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
@@ -361,12 +361,15 @@ class FirstRun:
                 self._bar.update(1)
 
     def finish(self, sim) -> None:
-        """Wait for the helper's renderer; compile the stepping kernel if the Simulation
-        chose another integrator (fidelity auto)."""
+        """Compile the kernels of the integrator the Simulation chose, if fidelity auto chose
+        another than the scene's; wait for the helper's renderer."""
         if self._bar is None:  # nothing was missing, or start failed
             return
         with self._own():
-            sim.compile_kernels()  # at once if start compiled it
+            stepping, pointed = integrator_jobs(sim.integrator, sim.system)
+            for job in pointed + [stepping]:
+                if not job.cached():
+                    job.compile()
             if self._helper is not None:
                 self._helper.wait()
                 self._reader.join()

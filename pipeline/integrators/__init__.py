@@ -6,8 +6,8 @@ class with `x` (3, N) positions, `velocity(system)`,
 `advance(system, steps, first_step) -> (steps done, kinetic energy, bound)`, where fewer
 steps done than asked means the divergence guard tripped, and `arguments(system, steps,
 first_step)`, what `advance` passes to the module's numba kernel `advance` (a first run
-compiles it from their types: pipeline.warmup). Modules are found by
-name: `state_class("verlet")` imports `pipeline.integrators.verlet` ('-' becomes '_':
+compiles it from their types: pipeline.warmup). Modules are found by name:
+`state_class("verlet")` imports `pipeline.integrators.verlet` ('-' becomes '_':
 `state_class("implicit-euler")` imports `pipeline.integrators.implicit_euler`).
 
     verlet            the classic damped Verlet (SPEC section 2), bit-identical to the course
