@@ -91,8 +91,44 @@ def _jobs(names) -> list[warmup.Job]:
                   key=lambda j: -warmup.COMPILE_SECONDS[j.name])
 
 
+@pytest.mark.filterwarnings("ignore::pipeline.overlap.StartInsideWarning")  # scenes that mean it
 def test_every_job_of_a_scene_has_an_estimate():
+    """The scenes above are the estimates' kernels, and every kernel a scene of scenes/
+    compiles with any integrator is among them (start needs its estimate: without one the
+    first run would compile everything on first use, in one process)."""
+    from pipeline.scene import INTEGRATORS, load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.system import build_system
+
     assert set().union(*_scenes()) == set(warmup.COMPILE_SECONDS)
+    seen = set()
+    for path in sorted((HOME / "scenes").glob("*.json")):
+        scene = load_scene(path)
+        system = build_system(scene, cloth_model(scene))
+        names = {job.name for job in warmup.sim_jobs(system)}
+        assert {job.name for job in warmup.sim_jobs(system) if job.linked} <= LINKED
+        assert names in [set(listed) for listed in _scenes()]  # a combination above
+        for integrator in INTEGRATORS:
+            names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
+        assert names <= set(warmup.COMPILE_SECONDS), path.name
+        seen |= names
+    # the FEM's kernels, a mesh's projection, wind and self-collision all occur
+    assert seen == set(warmup.COMPILE_SECONDS)
+
+
+def test_prepare_comes_before_the_stability_limit(monkeypatch):
+    """Simulation(prepare=...) hands the model and System to the warm-up before the
+    stability limit runs (a FEM cloth's runs the element kernels)."""
+    from pipeline import simulation
+
+    calls = []
+    limit = simulation.stability_limit
+    monkeypatch.setattr(simulation, "stability_limit",
+                        lambda model: calls.append("limit") or limit(model))
+    sim = simulation.Simulation(SCENE, prepare=lambda model, system: calls.append(
+        (model, system)))
+    assert len(calls) == 2 and calls[1] == "limit"
+    assert calls[0][0] is sim.model and calls[0][1] is sim.system
 
 
 def test_split_balances_the_two_processes():
