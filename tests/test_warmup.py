@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from conftest import cloth_dict, scene_dict
+from conftest import SCENES, cloth_dict, scene_dict
 
 from pipeline import warmup
 
@@ -102,7 +102,7 @@ def test_every_job_of_a_scene_has_an_estimate():
 
     assert set().union(*_scenes()) == set(warmup.COMPILE_SECONDS)
     seen = set()
-    for path in sorted((HOME / "scenes").glob("*.json")):
+    for path in sorted(SCENES.glob("*.json")):
         scene = load_scene(path)
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}
