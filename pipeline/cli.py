@@ -27,7 +27,7 @@ import numpy as np
 
 from . import outputs, signals
 from .outputs import OutputError, WriteError
-from .progress import bar, progress_enabled
+from .progress import bar, progress_enabled, write_line
 
 PROG = "render"
 DEFAULT_FPS = {"gif": 25.0, "mp4": 30.0, "png": 25.0, "dir": 25.0, None: 25.0}
@@ -389,7 +389,7 @@ class _Errors:
 
     def say(self, msg: str) -> None:
         try:
-            print(f"{PROG}: {msg}", file=self.stream, flush=True)
+            write_line(f"{PROG}: {msg}", self.stream)
         except OSError:  # stderr gone (its terminal hung up): the exit status remains
             pass
 

@@ -4,6 +4,18 @@ from __future__ import annotations
 import sys
 
 
+def write_line(line: str, stream) -> None:
+    """Print `line` on `stream`. Bars shown there (tqdm) are cleared first and drawn again
+    below it: printed as is, a message went on after a bar on its line ("... 12/12 [00:18<
+    00:00, 1.59s/kernel]render: warning: ...")."""
+    tqdm = sys.modules.get("tqdm")  # bars exist only once tqdm is imported (`bar`, `counter`)
+    if tqdm is not None and stream is sys.stderr:
+        tqdm.tqdm.write(line, file=stream)
+        stream.flush()
+    else:
+        print(line, file=stream, flush=True)
+
+
 class _NullBar:
     def update(self, n: int = 1) -> None:
         pass

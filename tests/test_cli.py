@@ -651,3 +651,22 @@ def test_progress_bars_on_a_terminal_only(env, scene, tmp_path, monkeypatch):
     assert main([str(scene), "--out", str(tmp_path / "b.gif"), "--size", "32x32",
                  "--duration", "0.2", "--quiet"]) == 0
     assert tty.buf.getvalue() == ""
+
+
+def test_a_message_under_a_bar_starts_on_a_cleared_line(monkeypatch):
+    """A message said while a bar is on screen (a stability warning during the first run's
+    compile) blanks the bar's line first and draws the bar again below: printed as is, it
+    went on after the bar ("... 12/12 [00:18<00:00, 1.59s/kernel]render: warning: ...")."""
+    from pipeline import cli
+    from pipeline.progress import bar
+
+    tty = _TTY()
+    monkeypatch.setattr(sys, "stderr", tty)
+    kernels = bar(5, "compile", "kernel", True)
+    kernels.update(2)
+    cli._Errors(sys.stderr, quiet=False, debug=False).warn("a warning")
+    kernels.close()
+    text = tty.buf.getvalue()
+    before, after = text.split("render: warning: a warning\n")
+    assert "compile" in before and before.endswith("\r")  # the bar, then its line blanked
+    assert "2/5" in after  # drawn again
