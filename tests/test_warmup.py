@@ -69,8 +69,8 @@ COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
           "pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"]
 MODELS = [["pipeline.forces:internal_forces", "pipeline.constraints:limit_stretch"],
-          ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles", "pipeline.fem:_hinges",
-           "pipeline.fem:fem_filtered_jacobian_product"]]
+          ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
+           "pipeline.fem:_hinges", "pipeline.fem:fem_filtered_jacobian_product"]]
 TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
