@@ -76,6 +76,12 @@ class Job:
     args: tuple
     linked: bool = False
 
+    @classmethod
+    def of(cls, dispatcher, args: tuple, linked: bool = False) -> Job:
+        """The job of compiling `dispatcher` for `args`."""
+        return cls(f"{dispatcher.py_func.__module__}:{dispatcher.py_func.__name__}", args,
+                   linked)
+
     def dispatcher(self):
         module, function = self.name.split(":")
         return getattr(importlib.import_module(module), function)
@@ -119,9 +125,9 @@ def kernel_pointers(system) -> list:
 def sim_jobs(system) -> list[Job]:
     """The kernels every integrator calls once per step (and a FEM cloth's stability limit),
     with arguments of the types the integrators pass (self-collision only when the scene
-    turns it on: otherwise numba prunes it from the stepping kernel), longest to compile
-    first. Most are called through pointers (shading.jit.KernelPointer): jobs of their
-    own, not compiled with their callers."""
+    turns it on: otherwise numba prunes it from the stepping kernel). Most are called
+    through pointers (shading.jit.KernelPointer): jobs of their own, not compiled with their
+    callers."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
     last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
@@ -132,14 +138,10 @@ def sim_jobs(system) -> list[Job]:
               "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
     if s.wind is None:  # pruned from the stepping kernel
         del linked["pipeline.wind:add_wind_force"]
-    apart = {}
+    jobs = [Job(n, a, True) for n, a in linked.items()]
     if s.fem is not None:  # the stability limit's (system.stability_limit)
-        apart["pipeline.fem:fem_filtered_jacobian_product"] = (s.fem.x_rest, s.fem, x, f)
-    for pointer in kernel_pointers(s):
-        disp = pointer.dispatcher
-        apart[f"{disp.py_func.__module__}:{disp.py_func.__name__}"] = pointer.argtypes
-    jobs = [Job(n, a, True) for n, a in linked.items()] + [Job(n, a) for n, a in apart.items()]
-    return sorted(jobs, key=lambda job: COMPILE_SECONDS[job.name], reverse=True)
+        jobs.append(Job("pipeline.fem:fem_filtered_jacobian_product", (s.fem.x_rest, s.fem, x, f)))
+    return jobs + [Job.of(p.dispatcher, p.argtypes) for p in kernel_pointers(s)]
 
 
 def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
@@ -152,10 +154,8 @@ def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
     kernel = stepping_kernel(integrator)
     state = integrator_module(integrator).State(system)
     pointers = [p for p in vars(state).values() if isinstance(p, KernelPointer)]
-    return (Job(f"{kernel.py_func.__module__}:{kernel.py_func.__name__}",
-                state.arguments(system, 0, 0)),
-            [Job(f"{p.dispatcher.py_func.__module__}:{p.dispatcher.py_func.__name__}",
-                 p.argtypes) for p in pointers])
+    return (Job.of(kernel, state.arguments(system, 0, 0)),
+            [Job.of(p.dispatcher, p.argtypes) for p in pointers])
 
 
 def split(jobs: list[Job], render: bool, step: bool) -> tuple[list[Job], list[Job], bool]:
@@ -329,7 +329,7 @@ class FirstRun:
         try:
             stepping, pointed = integrator_jobs(self.integrator, system)
             jobs = sorted((j for j in sim_jobs(system) + pointed if not j.cached()),
-                          key=lambda job: COMPILE_SECONDS[job.name], reverse=True)
+                          key=lambda job: COMPILE_SECONDS[job.name], reverse=True)  # longest first
             step = not stepping.cached()
             render = self.render(model) if self.render is not None else None
             if render is not None and render.cached():
