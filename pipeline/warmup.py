@@ -274,10 +274,7 @@ class FirstRun:
 
         event.unregister("numba:compile", self._listener)
         self._close_watched()
-        if self._helper is not None:  # left early (an error, a signal): the helper goes too
-            self._helper.kill()
-            self._helper.wait()
-            self._helper.stdout.close()
+        self._end_helper(kill=True)  # left early (an error, a signal): the helper goes too
         if self._bar is not None:
             self._bar.close()
 
@@ -363,20 +360,31 @@ class FirstRun:
     def finish(self, sim) -> None:
         """Compile the kernels of the integrator the Simulation chose, if fidelity auto chose
         another than the scene's; wait for the helper's renderer."""
-        if self._bar is None:  # nothing was missing, or start failed
+        missing = []
+        if sim.integrator != self.integrator:
+            stepping, pointed = integrator_jobs(sim.integrator, sim.system)
+            missing = [job for job in pointed + [stepping] if not job.cached()]
+        if self._bar is None and not missing:  # nothing was missing, or start failed
             return
         with self._own():
-            stepping, pointed = integrator_jobs(sim.integrator, sim.system)
-            for job in pointed + [stepping]:
-                if not job.cached():
-                    job.compile()
-            if self._helper is not None:
-                self._helper.wait()
-                self._reader.join()
-                self._helper.stdout.close()
-                self._helper = None
-            self._bar.close()
-            self._bar = None
+            for job in missing:
+                job.compile()
+            self._end_helper(kill=False)
+            if self._bar is not None:
+                self._bar.close()
+                self._bar = None
+
+    def _end_helper(self, kill: bool) -> None:
+        """Wait for the helper (`kill`: kill it first) and close its pipe."""
+        if self._helper is None:
+            return
+        if kill:
+            self._helper.kill()
+        self._helper.wait()
+        if not kill:
+            self._reader.join()  # its last reports are on the bar
+        self._helper.stdout.close()
+        self._helper = None
 
     def _start_helper(self, helper: list[Job], render: RenderJob | None) -> threading.Event:
         """Start the helper on its jobs and `render`; the event is set once its simulation
