@@ -19,10 +19,9 @@ _get_wrapper_address() missing 1 required positional argument" (an internal erro
 1; once in 15 runs of the MP4 signal test). Python runs a handler at the first Python code
 it meets, and after a kernel that is often numba's unboxing for the next call. A held-back
 signal is sent again a moment later, until it finds the main thread back in plain Python.
-So is
-one that lands inside `deferred()`, a step that must not be cut in half (starting worker
-processes: a worker spawned but not yet sent its task would die reading an empty pipe, with
-a traceback).
+So is one that lands inside `deferred()`, a step that must not be cut in half (starting
+worker processes: a worker spawned but not yet sent its task would die reading an empty
+pipe, with a traceback).
 """
 from __future__ import annotations
 

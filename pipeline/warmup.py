@@ -36,10 +36,12 @@ from .integrators import stepping_kernel
 from .progress import bar, counter
 
 # The simulation's kernels with their cold compile CPU times in seconds, one after the other
-# in one process on an empty cache (2026-11-25: the sphere, bowl and flag scenes' kernels,
-# scaled so that the renderer's, measured beside them, is 11.2 s; the FEM's band
-# alone the same day). They split the kernels between this process and the helper
-# (`split`) and give the estimate of the first-run message.
+# in one process on an empty cache (2026-11-25 at night: the sphere, bowl and flag scenes'
+# kernels, scaled so that the renderer's, measured beside them, is 11.2 s; that morning the
+# FEM's elements and implicit Euler's solve and product, each alone, scaled by 0.88, the
+# ratio of the FEM's old band estimate, 8.0 s, to its 9.1 s measured then; the FEM's
+# internal forces from traced runs, 0.5-1.5 s). They split the kernels between this process
+# and the helper (`split`) and give the estimate of the first-run message.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
