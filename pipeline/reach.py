@@ -60,8 +60,13 @@ def reach_check(x, reach, active, thickness):
     if r.armed[0] or r.armed[1]:
         n = x.shape[1]
         mean = np.zeros(3)
-        for a in range(3):
-            mean[a] = np.sum(x[a]) / n - r.mean_anchor[a]
+        for a in range(3):  # np.sum's order, in a loop: a kernel using numba's np.sum makes
+            # every process that loads it from the cache import numba.np.arraymath, whose
+            # BLAS check imports scipy (0.27 s of a warm run)
+            total = 0.0
+            for p in range(n):
+                total += x[a, p]
+            mean[a] = total / n - r.mean_anchor[a]
         far = 0.0
         drift = 0.0
         for p in range(n):

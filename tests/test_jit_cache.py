@@ -1,5 +1,6 @@
 """numba's on-disk cache: its index stays right when processes save into it at once
-(shading.jit), and a new process loads every renderer kernel from it."""
+(shading.jit), a new process loads every renderer kernel from it, and loading leaves
+numba's compiler registries alone until something compiles."""
 from __future__ import annotations
 
 import multiprocessing
@@ -9,7 +10,7 @@ import subprocess
 import sys
 
 import pytest
-from conftest import child_env
+from conftest import child_env, scene_path
 
 SAVES = 150
 
@@ -168,3 +169,66 @@ def test_a_kernel_pointer_calls_the_kernel_and_both_load_from_the_cache(tmp_path
         outputs.append(run.stdout.split())
     assert outputs[0] == ["True", "1", "1", "0"]  # compiled both
     assert outputs[1] == outputs[2] == ["True", "0", "0", "1"]  # loaded both
+
+
+_LOAD_THEN_COMPILE = """
+import sys
+import numpy as np
+from shading.jit import njit
+
+
+@njit(cache=True)
+def ramp(n):
+    return np.arange(n) * 0.5  # allocates: the runtime (NRT) must be set up
+
+
+if sys.argv[1] == "later":
+    ramp(4)  # from the cache: the registries stay unloaded
+    loaded = "numba.np.arraymath" in sys.modules
+
+    @njit  # compiled here, over the loaded kernel: the registries load now
+    def total(n):
+        return ramp(n).sum()
+
+    print(loaded, total(4), ramp(3).sum())
+else:
+    print(ramp(4).sum())
+"""
+
+
+def test_a_process_loads_from_the_cache_then_compiles(tmp_path):
+    """Loading a kernel from the cache skips numba's registry refresh (shading.jit) but sets
+    up the runtime, so a loaded kernel that allocates runs; a kernel compiled later in the
+    same process, calling it, compiles and runs (the registries load then)."""
+    (tmp_path / "load_then_compile.py").write_text(_LOAD_THEN_COMPILE)
+    env = child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    outputs = []
+    for when in ("first", "later"):
+        run = subprocess.run([sys.executable, str(tmp_path / "load_then_compile.py"), when],
+                             capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+        assert run.returncode == 0, run.stderr[-500:]
+        outputs.append(run.stdout.split())
+    assert outputs == [["3.0"], ["False", "3.0", "1.5"]]
+
+
+_WARM_RENDER = """
+import sys
+from pipeline.cli import main
+status = main(sys.argv[1:])
+print(status, sorted(m for m in ("numba.np.arraymath", "numba.np.linalg", "scipy.linalg")
+                     if m in sys.modules))
+"""
+
+
+def test_a_warm_render_loads_no_compiler_registries(tmp_path):
+    """The README's command, warm: every kernel comes from the cache, and neither numba's
+    registries (numba.np.arraymath, numba.np.linalg) nor scipy.linalg, which their BLAS
+    check imports, are loaded (0.3-0.5 s of a warm run). Fails if a kernel of the command
+    calls one of numba's numpy functions implemented there (np.sum, np.any: reach.py)."""
+    args = [str(scene_path("sphere")), "--shader", "phong", "--out", str(tmp_path / "a.gif"),
+            "--duration", "0.2", "--size", "48x48", "--quiet"]
+    for _ in range(2):  # the first fills the cache if this is the first use
+        run = subprocess.run([sys.executable, "-c", _WARM_RENDER, *args], capture_output=True,
+                             text=True, env=child_env(), timeout=600)
+        assert run.returncode == 0, run.stderr[-500:]
+    assert run.stdout.strip() == "0 []"

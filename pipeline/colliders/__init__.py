@@ -285,7 +285,10 @@ def _collide_points(x, last, pinned, table):
 def collide_all(x, last, pinned, table, t_start, t_end):
     """Apply the colliders to every free point of x (3, N) for the step from t_start (when
     the points were at `last`) to t_end."""
-    if not np.any(table.active):  # also when there is no collider
+    for on in table.active:  # a loop, not np.any (see reach.reach_check)
+        if on:
+            break
+    else:  # none active, or no collider
         return
     update_poses(table, t_start, t_end)
     _collide_points(x, last, pinned, table)
