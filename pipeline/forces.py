@@ -101,21 +101,17 @@ def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force):
-    """spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none)."""
+def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f):
+    """f[:] = mass * gravity + the spring forces at positions x (3, N); mass is (N,), and
+    spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none).
+    Both parallel loops in one kernel: the first as a parallel kernel of its own, called
+    here, made the first compile 1-2 s longer (its parallel machinery compiled twice)."""
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
             _direction_forces(x, offsets[d], exists[d], rest[d], stiffness[d], spring_force[d],
                               lo, hi)
-
-
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f):
-    """f[:] = mass * gravity + the spring forces at positions x (3, N); mass is (N,)."""
-    compute_spring_forces(x, offsets, exists, rest, stiffness, spring_force)
-    n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         _gather(spring_force, offsets, order, mass, gravity, f, lo, hi)

@@ -69,7 +69,7 @@ class System(NamedTuple):
     springs: tuple | None
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     scratch: tuple | None  # SelfCollisionScratch.as_tuple(); None: off (pruned from the kernels)
-    spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.compute_spring_forces
+    spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.spring_forces
     mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them

@@ -40,15 +40,17 @@ from .progress import bar, counter
 # kernels, scaled so that the renderer's, measured beside them, is 11.2 s; that morning the
 # FEM's elements and implicit Euler's solve and product, each alone, scaled by 0.88, the
 # ratio of the FEM's old band estimate, 8.0 s, to its 9.1 s measured then; the FEM's
-# internal forces from traced runs, 0.5-1.5 s). They split the kernels between this process
-# and the helper (`split`) and give the estimate of the first-run message.
+# internal forces from traced runs, 0.5-1.5 s; the classic internal forces 0.8 of their
+# old 5.0 s since their two parallel loops are one kernel, five alternating runs). They
+# split the kernels between this process and the helper (`split`) and give the estimate of
+# the first-run message.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
 COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.colliders:_collide_range": 2.7,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
-                   "pipeline.forces:internal_forces": 5.0,
+                   "pipeline.forces:internal_forces": 4.0,
                    "pipeline.forces:fem_internal_forces": 1.5,
                    "pipeline.self_collision:self_collide": 3.1,
                    "pipeline.constraints:limit_stretch": 2.5,
