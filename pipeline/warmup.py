@@ -60,12 +60,16 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.fem:_hinges": 4.0,
                    "pipeline.fem:fem_filtered_jacobian_product": 1.5,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
-                   "pipeline.forces:jacobian_product": 4.0}
+                   "pipeline.forces:jacobian_product": 4.0,
+                   "pipeline.integrators.verlet:_update_all": 0.95}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
 # (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
 RENDER_SECONDS = 9.5
 STEP_SECONDS = 3.4  # the integrator's stepping kernel (its passes called through pointers)
+# Verlet's, which calls its update through a pointer too (verlet.State.update, a job of its
+# own): 2.45-3.20 s against 4.02-4.65 s before, alternately, scaled by 0.8 as STEP_SECONDS
+VERLET_STEP_SECONDS = 2.2
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
@@ -162,12 +166,12 @@ def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
             [Job.of(p.dispatcher, p.argtypes) for p in pointers])
 
 
-def split(jobs: list[Job], render: bool, step: bool) -> tuple[list[Job], list[Job], bool]:
+def split(jobs: list[Job], render: bool, step: float) -> tuple[list[Job], list[Job], bool]:
     """(this process's jobs, the helper's, whether to start the helper): the stepping
     kernel's linked callees here, each other job, longest first, to the side where
-    estimate_seconds ends sooner, this process ending with the stepping kernel (`step`)
-    and the helper with the renderer's (`render`); the helper only when that beats
-    compiling everything here, two compiles at once being slower."""
+    estimate_seconds ends sooner, this process ending with the stepping kernel (`step`
+    seconds, 0 if cached) and the helper with the renderer's (`render`); the helper only
+    when that beats compiling everything here, two compiles at once being slower."""
     alone = estimate_seconds(jobs, [], render, step, False)
     here = [job for job in jobs if job.linked]
     helper: list[Job] = []
@@ -208,18 +212,23 @@ class RenderJob:
                    for sig, *_ in _cache_index(fragment_stage))
 
 
-def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: bool,
+def step_seconds(integrator: str) -> float:
+    """The estimate of `integrator`'s stepping kernel."""
+    return VERLET_STEP_SECONDS if integrator == "verlet" else STEP_SECONDS
+
+
+def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: float,
                      two_processes: bool) -> float:
     """The first-run message's estimate (on this 2-core machine, idle): in two processes,
-    this process's share then the stepping kernel, while the helper (from HELPER_START)
-    compiles its share then the renderer's (`render`); else all of it in this process."""
+    this process's share then the stepping kernel (`step` seconds), while the helper (from
+    HELPER_START) compiles its share then the renderer's (`render`); else all of it in this
+    process."""
     mine = sum(COMPILE_SECONDS[j.name] for j in here)
     theirs = sum(COMPILE_SECONDS[j.name] for j in helper)
-    stepping = STEP_SECONDS if step else 0.0
     rendering = RENDER_SECONDS if render else 0.0
     if two_processes:
-        return CONTENTION * max(mine + stepping, HELPER_START + theirs + rendering)
-    return mine + theirs + stepping + rendering
+        return CONTENTION * max(mine + step, HELPER_START + theirs + rendering)
+    return mine + theirs + step + rendering
 
 
 FIRST_RUN = "compiling kernels for this machine (first run only{})"
@@ -331,7 +340,7 @@ class FirstRun:
             stepping, pointed = integrator_jobs(self.integrator, system)
             jobs = sorted((j for j in sim_jobs(system) + pointed if not j.cached()),
                           key=lambda job: COMPILE_SECONDS[job.name], reverse=True)  # longest first
-            step = not stepping.cached()
+            step = 0.0 if stepping.cached() else step_seconds(self.integrator)
             render = self.render(model) if self.render is not None else None
             if render is not None and render.cached():
                 render = None
@@ -347,7 +356,7 @@ class FirstRun:
                 self.say(f"compiling the other kernels (about {seconds:.0f} s)" if self.said
                          else FIRST_RUN.format(f", about {seconds:.0f} s"))
                 self.said = True
-            self._bar = bar(len(jobs) + int(step) + int(render is not None), "compile",
+            self._bar = bar(len(jobs) + int(step > 0) + int(render is not None), "compile",
                             "kernel", self.progress, 0)
             ready = self._start_helper(helper, render) if two_processes else None
             # the stepping kernel from its arguments' types: the kernels it calls through

@@ -75,7 +75,8 @@ TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
-                    "pipeline.forces:jacobian_product"]]  # what the States point to
+                    "pipeline.forces:jacobian_product"],
+               ["pipeline.integrators.verlet:_update_all"]]  # what the States point to
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
           "pipeline.system:energy_guard", "pipeline.reach:reach_check"}
@@ -143,7 +144,7 @@ def test_split_balances_the_two_processes():
             free = [j for j in jobs if not j.linked]
             linked = [j for j in jobs if j.linked]
             for render in (False, True):
-                for step in (False, True):
+                for step in (0.0, warmup.VERLET_STEP_SECONDS, warmup.STEP_SECONDS):
                     here, helper, two = warmup.split(jobs, render, step)
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)
@@ -159,10 +160,10 @@ def test_split_balances_the_two_processes():
                     assert chosen <= min(alone, best * 4 / 3) + 1e-9
     # the README scene: the renderer and every simulation kernel cold -> two processes
     readme = _jobs(COMMON + MODELS[0] + TABLES[1])
-    assert warmup.split(readme, True, True)[2]
+    assert warmup.split(readme, True, warmup.step_seconds("verlet"))[2]
     # one small kernel and nothing else: compiled here
     small = [warmup.Job("pipeline.system:energy_guard", (), True)]
-    assert warmup.split(small, False, False) == (small, [], False)
+    assert warmup.split(small, False, 0.0) == (small, [], False)
 
 
 class _Counted:

@@ -10,7 +10,7 @@ see the velocity of the last step, (x - x_last) / dt.
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, position_passes, step_guard
@@ -20,20 +20,24 @@ CONDITIONALLY_STABLE = True
 
 
 class State:
-    """Positions and last positions, (3, N) each, and the force buffer."""
+    """Positions and last positions, (3, N) each, the force buffer, and the update of the
+    points through a pointer (compiled once, on its own, not again in every stepping
+    kernel: see shading.jit.KernelPointer)."""
 
     def __init__(self, system: System) -> None:
         self.x = system.x0.copy()
         self.last = system.x0.copy()
         self.force = np.zeros_like(system.x0)
         self.v = np.zeros_like(system.x0)  # (x - last) / dt, when a force needs it
+        self.update = KernelPointer(_update_all, (self.x, self.last, self.force, system.pinned,
+                                                  system.mass, 0.0, 0.0))
 
     def velocity(self, system: System) -> np.ndarray:
         return (self.x - self.last) / system.dt
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
-        return system, self.x, self.last, self.v, self.force, steps, first_step
+        return system, self.x, self.last, self.v, self.force, self.update, steps, first_step
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
@@ -63,7 +67,7 @@ def _update_all(x, last, force, pinned, mass, keep, dt2):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, last, v, force, steps, first_step):
+def advance(s, x, last, v, force, update, steps, first_step):
     """Run `steps` steps, the first being step number `first_step` of the run. Returns
     (steps done, kinetic energy, bound); fewer steps than asked means the divergence guard
     tripped after the last one (see system.energy_guard)."""
@@ -77,7 +81,7 @@ def advance(s, x, last, v, force, steps, first_step):
                 for p in range(x.shape[1]):
                     v[a, p] = (x[a, p] - last[a, p]) / s.dt
         total_force(x, v, t, s, force)
-        _update_all(x, last, force, s.pinned, s.mass, keep, dt2)
+        update(x, last, force, s.pinned, s.mass, keep, dt2)
         position_passes(x, last, s, t)
         ok, kinetic, bound = step_guard(x, last, s)
         if not ok:
