@@ -61,15 +61,17 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.fem:fem_filtered_jacobian_product": 1.5,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
                    "pipeline.forces:jacobian_product": 4.0,
-                   "pipeline.integrators.verlet:_update_all": 0.95}
+                   "pipeline.integrators.verlet:_update_all": 0.95,
+                   "pipeline.integrators.implicit_euler:_update": 0.4}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
 # (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
 RENDER_SECONDS = 9.5
 STEP_SECONDS = 3.4  # the integrator's stepping kernel (its passes called through pointers)
-# Verlet's, which calls its update through a pointer too (verlet.State.update, a job of its
-# own): 2.45-3.20 s against 4.02-4.65 s before, alternately, scaled by 0.8 as STEP_SECONDS
-VERLET_STEP_SECONDS = 2.2
+# Verlet's and implicit Euler's, which call their update through a pointer too (State.update,
+# a job of its own): 2.45-3.20 s against 4.02-4.65 s before and 3.30-3.97 s against
+# 4.73-5.19 s, alternately, scaled as STEP_SECONDS (0.8, 0.69)
+UPDATE_STEP_SECONDS = {"verlet": 2.2, "implicit-euler": 2.5}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
@@ -214,7 +216,7 @@ class RenderJob:
 
 def step_seconds(integrator: str) -> float:
     """The estimate of `integrator`'s stepping kernel."""
-    return VERLET_STEP_SECONDS if integrator == "verlet" else STEP_SECONDS
+    return UPDATE_STEP_SECONDS.get(integrator, STEP_SECONDS)
 
 
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: float,

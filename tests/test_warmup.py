@@ -75,7 +75,8 @@ TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
-                    "pipeline.forces:jacobian_product"],
+                    "pipeline.forces:jacobian_product",
+                    "pipeline.integrators.implicit_euler:_update"],
                ["pipeline.integrators.verlet:_update_all"]]  # what the States point to
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
@@ -144,7 +145,7 @@ def test_split_balances_the_two_processes():
             free = [j for j in jobs if not j.linked]
             linked = [j for j in jobs if j.linked]
             for render in (False, True):
-                for step in (0.0, warmup.VERLET_STEP_SECONDS, warmup.STEP_SECONDS):
+                for step in (0.0, warmup.step_seconds("verlet"), warmup.STEP_SECONDS):
                     here, helper, two = warmup.split(jobs, render, step)
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)

@@ -43,21 +43,24 @@ class State(VelocityState):
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
-        # the solve and the Jacobian product it calls, through pointers: compiled once per
-        # model rather than linked into (and optimised again in) the stepping kernel of
-        # every System type, and apart (a first run compiles them in two processes)
+        # the solve, the Jacobian product it calls and the update, through pointers:
+        # compiled once per model rather than linked into (and optimised again in) the
+        # stepping kernel of every System type, and apart (a first run compiles them in two
+        # processes)
         fem, springs = system.fem, system.springs
         self.product = KernelPointer(jacobian_product, (
             self.x, self.x, fem, springs, self.unit, self.alpha, self.buffer, self.x))
         self.solve = KernelPointer(solve_step, (
             self.x, self.v, self.force, 0.0, system.pinned, system.mass, fem, springs,
             self.unit, self.alpha, self.buffer, self.work, 0.0, self.product), types.int64)
+        self.update = KernelPointer(_update, (self.x, self.v, self.last, self.work[1],
+                                              system.pinned, 0.0, self.predicted))
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
         return (system, self.x, self.v, self.last, self.predicted, self.force, self.unit,
                 self.alpha, self.buffer, self.work, self.iterations, self.solve, self.product,
-                steps, first_step)
+                self.update, steps, first_step)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
@@ -135,7 +138,7 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     return iterations
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _update(x, v, last, dv, pinned, dt, predicted):
     n = x.shape[1]
     for c in prange(CHUNKS):
@@ -151,7 +154,7 @@ def _update(x, v, last, dv, pinned, dt, predicted):
 
 @njit(cache=True, nogil=True)
 def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, solve,
-            product, steps, first_step):
+            product, update, steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
@@ -160,7 +163,7 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
         total_force(x, v, t, s, force)
         iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, s.springs, unit,
                                alpha, buffer, work, gamma, product)
-        _update(x, v, last, work[1], s.pinned, s.dt, predicted)
+        update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
         ok, kinetic, bound = step_guard(x, last, s)
