@@ -70,7 +70,7 @@ RENDER_SECONDS = 9.5
 STEP_SECONDS = 3.4  # the integrator's stepping kernel (its passes called through pointers)
 # Verlet's and implicit Euler's, which call their update through a pointer too (State.update,
 # a job of its own): 2.45-3.20 s against 4.02-4.65 s before and 3.30-3.97 s against
-# 4.73-5.19 s, alternately, scaled as STEP_SECONDS (0.8, 0.69)
+# 4.73-5.19 s, alternately, each scaled by STEP_SECONDS / the old time (0.8, 0.69)
 UPDATE_STEP_SECONDS = {"verlet": 2.2, "implicit-euler": 2.5}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
