@@ -223,7 +223,7 @@ print(status, sorted(m for m in ("numba.np.arraymath", "numba.np.linalg", "scipy
 def test_a_warm_render_loads_no_compiler_registries(tmp_path):
     """The README's command, warm: every kernel comes from the cache, and neither numba's
     registries (numba.np.arraymath, numba.np.linalg) nor scipy.linalg, which their BLAS
-    check imports, are loaded (0.3-0.5 s of a warm run). Fails if a kernel of the command
+    check imports, are loaded (0.5-0.7 s of a warm run). Fails if a kernel of the command
     calls one of numba's numpy functions implemented there (np.sum, np.any: reach.py)."""
     args = [str(scene_path("sphere")), "--shader", "phong", "--out", str(tmp_path / "a.gif"),
             "--duration", "0.2", "--size", "48x48", "--quiet"]
