@@ -62,16 +62,20 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
                    "pipeline.forces:jacobian_product": 4.0,
                    "pipeline.integrators.verlet:_update_all": 0.95,
-                   "pipeline.integrators.implicit_euler:_update": 0.4}
+                   "pipeline.integrators.implicit_euler:_update": 0.4,
+                   "pipeline.integrators.euler:euler_update": 0.75,
+                   "pipeline.integrators.rk4:_stage": 0.65, "pipeline.integrators.rk4:_finish": 0.4}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
 # (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
 RENDER_SECONDS = 9.5
-STEP_SECONDS = 3.4  # the integrator's stepping kernel (its passes called through pointers)
-# Verlet's and implicit Euler's, which call their update through a pointer too (State.update,
-# a job of its own): 2.45-3.20 s against 4.02-4.65 s before and 3.30-3.97 s against
-# 4.73-5.19 s, alternately, each scaled by STEP_SECONDS / the old time (0.8, 0.69)
-UPDATE_STEP_SECONDS = {"verlet": 2.2, "implicit-euler": 2.5}
+# Each integrator's stepping kernel (its passes called through pointers), 3.4 s before its
+# update went through a pointer too (State.update, rk4's State.stage and .finish: jobs of
+# their own); since, alternately with the tree before, Verlet's 2.45-3.20 s against
+# 4.02-4.65 s, implicit Euler's 3.30-3.97 s against 4.73-5.19 s, rk4's 3.25-3.39 s against
+# 5.91-6.27 s, Euler's 3.88-4.95 s against 4.79-5.42 s, each scaled by 3.4 / the old time
+STEP_SECONDS = {"verlet": 2.2, "euler": 2.9, "symplectic-euler": 2.9, "rk4": 1.9,
+                "implicit-euler": 2.5, "xpbd": 3.4}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
@@ -216,7 +220,7 @@ class RenderJob:
 
 def step_seconds(integrator: str) -> float:
     """The estimate of `integrator`'s stepping kernel."""
-    return UPDATE_STEP_SECONDS.get(integrator, STEP_SECONDS)
+    return STEP_SECONDS[integrator]
 
 
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: float,

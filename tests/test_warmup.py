@@ -77,7 +77,10 @@ SELF = [[], ["pipeline.self_collision:self_collide"]]
 INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
                     "pipeline.forces:jacobian_product",
                     "pipeline.integrators.implicit_euler:_update"],
-               ["pipeline.integrators.verlet:_update_all"]]  # what the States point to
+               ["pipeline.integrators.verlet:_update_all"],
+               ["pipeline.integrators.euler:euler_update"],
+               ["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"]]
+# (the kernels the States point to)
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
           "pipeline.system:energy_guard", "pipeline.reach:reach_check"}
@@ -103,6 +106,7 @@ def test_every_job_of_a_scene_has_an_estimate():
     from pipeline.system import build_system
 
     assert set().union(*_scenes()) == set(warmup.COMPILE_SECONDS)
+    assert set(warmup.STEP_SECONDS) == set(INTEGRATORS)  # every stepping kernel's estimate
     seen = set()
     for path in sorted(SCENES.glob("*.json")):
         scene = load_scene(path)
@@ -134,18 +138,19 @@ def test_prepare_comes_before_the_stability_limit(monkeypatch):
 
 
 def test_split_balances_the_two_processes():
-    """On every scene's kernels, all cold and 200 random parts of them (the rest cached):
+    """On every scene's kernels, all cold and 60 random parts of them (the rest cached):
     the split is within 4/3 of the best one (every way of sharing them, the linked callees
     here) and beats one process when it starts the helper."""
     rng = random.Random(15)
     for names in _scenes():
-        parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(200)]
+        parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(60)]
         for part in filter(None, parts):
             jobs = _jobs(part)
             free = [j for j in jobs if not j.linked]
             linked = [j for j in jobs if j.linked]
             for render in (False, True):
-                for step in (0.0, warmup.step_seconds("verlet"), warmup.STEP_SECONDS):
+                for step in (0.0, min(warmup.STEP_SECONDS.values()),
+                             max(warmup.STEP_SECONDS.values())):
                     here, helper, two = warmup.split(jobs, render, step)
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)

@@ -12,7 +12,7 @@ State: positions x, velocities v, start-of-step positions last, all (3, N).
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
@@ -24,8 +24,6 @@ CONDITIONALLY_STABLE = True
 class VelocityState:
     """Positions, velocities and start-of-step positions (3, N) each, plus scratch."""
 
-    symplectic = False
-
     def __init__(self, system: System) -> None:
         self.x = system.x0.copy()
         self.v = np.zeros_like(self.x)
@@ -36,20 +34,30 @@ class VelocityState:
     def velocity(self, system: System) -> np.ndarray:
         return self.v.copy()
 
+
+class State(VelocityState):
+    """Explicit Euler's (symplectic Euler's with `symplectic`), with the update of the
+    points through a pointer (compiled once, on its own, not again in every stepping
+    kernel: see shading.jit.KernelPointer)."""
+
+    symplectic = False
+
+    def __init__(self, system: System) -> None:
+        super().__init__(system)
+        self.update = KernelPointer(euler_update, (
+            self.x, self.v, self.last, self.force, system.pinned, system.mass, 0.0, 0.0,
+            self.symplectic, self.predicted))
+
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
-        return (system, self.x, self.v, self.last, self.predicted, self.force, steps, first_step,
-                self.symplectic)
+        return (system, self.x, self.v, self.last, self.predicted, self.force, self.update,
+                steps, first_step, self.symplectic)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
 
 
-class State(VelocityState):
-    symplectic = False
-
-
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predicted):
     n = x.shape[1]
     for c in prange(CHUNKS):
@@ -69,14 +77,14 @@ def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predict
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, steps, first_step, symplectic):
+def advance(s, x, v, last, predicted, force, update, steps, first_step, symplectic):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * s.dt
         total_force(x, v, t, s, force)
-        euler_update(x, v, last, force, s.pinned, s.mass, gamma, s.dt, symplectic, predicted)
+        update(x, v, last, force, s.pinned, s.mass, gamma, s.dt, symplectic, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)
         ok, kinetic, bound = step_guard(x, last, s)

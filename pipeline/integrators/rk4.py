@@ -10,7 +10,7 @@ State: positions x, velocities v, start-of-step positions last (3, N) each, plus
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 from ..forces import CHUNKS, _chunk, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
@@ -21,23 +21,32 @@ CONDITIONALLY_STABLE = True
 
 
 class State(VelocityState):
+    """With the stages and the last update of the points through pointers (compiled once,
+    on their own, not again in every stepping kernel: see shading.jit.KernelPointer)."""
+
     def __init__(self, system: System) -> None:
         super().__init__(system)
         self.stage_x = np.zeros_like(self.x)
         self.stage_v = np.zeros_like(self.x)
         self.sum_x = np.zeros_like(self.x)
         self.sum_v = np.zeros_like(self.x)
+        self.stage = KernelPointer(_stage, (
+            self.x, self.v, self.stage_x, self.stage_v, self.sum_x, self.sum_v, self.force,
+            system.pinned, system.mass, 0.0, 0.0, 0.0))
+        self.finish = KernelPointer(_finish, (self.x, self.v, self.last, self.sum_x, self.sum_v,
+                                              system.pinned, 0.0, self.predicted))
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
         return (system, self.x, self.v, self.last, self.predicted, self.force, self.stage_x,
-                self.stage_v, self.sum_x, self.sum_v, steps, first_step)
+                self.stage_v, self.sum_x, self.sum_v, self.stage, self.finish, steps,
+                first_step)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, pinned, mass, gamma, weight, step):
     """Add weight * (stage velocity, stage acceleration) to the sums and, if step > 0, set
     the next stage to (x, v) + step * (that velocity, that acceleration)."""
@@ -57,7 +66,7 @@ def _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, pinned, mass, gamma, wei
                     stage_v[a, p] = v[a, p] + step * ka
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _finish(x, v, last, sum_x, sum_v, pinned, dt, predicted):
     n = x.shape[1]
     for c in prange(CHUNKS):
@@ -72,8 +81,8 @@ def _finish(x, v, last, sum_x, sum_v, pinned, dt, predicted):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, predicted, force, stage_x, stage_v, sum_x, sum_v, steps,
-            first_step):
+def advance(s, x, v, last, predicted, force, stage_x, stage_v, sum_x, sum_v, stage, finish,
+            steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     h = s.dt
@@ -92,9 +101,9 @@ def advance(s, x, v, last, predicted, force, stage_x, stage_v, sum_x, sum_v, ste
         for weight, next_step, at in ((1.0, 0.5 * h, 0.0), (2.0, 0.5 * h, 0.5 * h),
                                       (2.0, h, 0.5 * h), (1.0, 0.0, h)):
             total_force(stage_x, stage_v, t + at, s, force)
-            _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, s.pinned, s.mass, gamma,
-                   weight, next_step)
-        _finish(x, v, last, sum_x, sum_v, s.pinned, h, predicted)
+            stage(x, v, stage_x, stage_v, sum_x, sum_v, force, s.pinned, s.mass, gamma,
+                  weight, next_step)
+        finish(x, v, last, sum_x, sum_v, s.pinned, h, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, h)
         ok, kinetic, bound = step_guard(x, last, s)

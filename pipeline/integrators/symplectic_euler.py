@@ -5,11 +5,11 @@ swapped; damping, pins, position passes and the guard are shared with it.
 """
 from __future__ import annotations
 
-from .euler import VelocityState
+from . import euler
 
 NAME = "symplectic-euler"
 CONDITIONALLY_STABLE = True
 
 
-class State(VelocityState):
+class State(euler.State):
     symplectic = True
