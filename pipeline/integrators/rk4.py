@@ -21,8 +21,9 @@ CONDITIONALLY_STABLE = True
 
 
 class State(VelocityState):
-    """With the stages and the last update of the points through pointers (compiled once,
-    on their own, not again in every stepping kernel: see shading.jit.KernelPointer)."""
+    """VelocityState with the stages' scratch, and the stage and the final update kernels
+    through pointers (compiled once, on their own, not again in every stepping kernel: see
+    shading.jit.KernelPointer)."""
 
     def __init__(self, system: System) -> None:
         super().__init__(system)
