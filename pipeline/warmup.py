@@ -218,11 +218,6 @@ class RenderJob:
                    for sig, *_ in _cache_index(fragment_stage))
 
 
-def step_seconds(integrator: str) -> float:
-    """The estimate of `integrator`'s stepping kernel."""
-    return STEP_SECONDS[integrator]
-
-
 def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: float,
                      two_processes: bool) -> float:
     """The first-run message's estimate (on this 2-core machine, idle): in two processes,
@@ -346,7 +341,7 @@ class FirstRun:
             stepping, pointed = integrator_jobs(self.integrator, system)
             jobs = sorted((j for j in sim_jobs(system) + pointed if not j.cached()),
                           key=lambda job: COMPILE_SECONDS[job.name], reverse=True)  # longest first
-            step = 0.0 if stepping.cached() else step_seconds(self.integrator)
+            step = 0.0 if stepping.cached() else STEP_SECONDS[self.integrator]
             render = self.render(model) if self.render is not None else None
             if render is not None and render.cached():
                 render = None

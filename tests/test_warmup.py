@@ -166,7 +166,7 @@ def test_split_balances_the_two_processes():
                     assert chosen <= min(alone, best * 4 / 3) + 1e-9
     # the README scene: the renderer and every simulation kernel cold -> two processes
     readme = _jobs(COMMON + MODELS[0] + TABLES[1])
-    assert warmup.split(readme, True, warmup.step_seconds("verlet"))[2]
+    assert warmup.split(readme, True, warmup.STEP_SECONDS["verlet"])[2]
     # one small kernel and nothing else: compiled here
     small = [warmup.Job("pipeline.system:energy_guard", (), True)]
     assert warmup.split(small, False, 0.0) == (small, [], False)
