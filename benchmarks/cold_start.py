@@ -13,6 +13,7 @@ Cases, in order, against ONE cache folder, so that each shows what its feature a
   fem        scenes/swing.json (the finite-element model)
   wind       scenes/flag.json
   mesh       scenes/bowl.json (a mesh collider)
+  self-collision  scenes/selfCollision.json (a plane, self-collision)
   <integ>    scenes/pinned2.json with each integrator but Verlet
   <shader>   scenes/sphere.json with each shader but phong
 Every case is run cold (its first run on this cache) and then warm. Speeds vary 1.5-2x on
@@ -43,7 +44,7 @@ SHADERS = ("normal", "wireframe", "diffuse", "texture", "bump", "displacement", 
 def cases() -> list[tuple[str, list[str]]]:
     readme = ["scenes/sphere.json", "--shader", "phong"]
     out = [("readme", readme), ("fem", ["scenes/swing.json"]), ("wind", ["scenes/flag.json"]),
-           ("mesh", ["scenes/bowl.json"])]
+           ("mesh", ["scenes/bowl.json"]), ("self-collision", ["scenes/selfCollision.json"])]
     out += [(name, ["scenes/pinned2.json", "--set", f'simulation.integrator="{name}"'])
             for name in INTEGRATORS]
     out += [(name, ["scenes/sphere.json", "--shader", name]) for name in SHADERS]

@@ -5,9 +5,10 @@ forces and Jacobians give way to pipeline.fem's (System.kernels.internal points 
 `fem_internal_forces`; the `jacobian_*` functions test `springs` and `fem`, see below).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
-adds to f and does nothing when its params are None (numba then prunes its code), packed
-into the System by system.build_system and called from `add_other_forces`, which
-`total_force` and `external_force` hand each force's params (not the System: see below).
+adds to f, packed into the System by system.build_system (params None, or of the same type
+as the force's with a flag saying it is off: see system.StepKernels) and called through a
+pointer in System.kernels from `add_other_forces`, which `total_force` and `external_force`
+hand each force's params and pointer (not the System: see below).
 
 Positions and forces are structure-of-arrays, shape (3, N). The spring forces are computed
 direction by direction into `spring_force` (6, 3, N + pad): contiguous loops the compiler
@@ -25,7 +26,6 @@ from shading.jit import njit, prange
 from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
                   fem_jacobian_diagonal)
 from .model import DIRECTION_DI, DIRECTION_DJ
-from .wind import add_wind_force
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
 
@@ -136,19 +136,19 @@ def force_fields(s) -> tuple:
     when Python calls it, inlined in kernels). The pointer comes last: numba tries to unify
     a plain tuple starting with a function as a tuple of functions, and warns."""
     return (s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-            s.gravity, s.spring_force, s.wind, s.kernels.internal)
+            s.gravity, s.spring_force, s.wind, s.kernels.wind, s.kernels.internal)
 
 
 @njit(cache=True, nogil=True, inline="always")
 def forces_of(x, v, t, fields, f):
     """total_force from the System's fields (force_fields): inlined in kernels; called from
-    Python it compiles once per model and wind (its entry point unboxes these fields; one
+    Python it compiles once per model and System kind (system.StepKernels; its entry point unboxes these fields; one
     taking the System compiled again for every System type, 2-3 s each, and unboxed all of
     it)."""
-    fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind, internal = (
-        fields)
+    (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind,
+     wind_force, internal) = fields
     internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)
-    add_other_forces(x, v, t, wind, f)
+    add_other_forces(x, v, t, wind, wind_force, f)
 
 
 # The kernels below take the System's fields, not the System (see system.py: one compile
@@ -181,18 +181,22 @@ def _gravity(mass, gravity, f):
 
 
 @njit(cache=True, nogil=True)
-def external_force(x, v, t, mass, gravity, wind, f):
+def external_force(x, v, t, mass, gravity, wind, wind_force, f):
     """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
     treats the springs as constraints)."""
     _gravity(mass, gravity, f)
-    add_other_forces(x, v, t, wind, f)
+    add_other_forces(x, v, t, wind, wind_force, f)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def add_other_forces(x, v, t, wind, f):
-    """f += the forces beyond gravity and springs (each one function, off unless the scene
-    asks for it: wind None is no wind)."""
-    add_wind_force(x, v, t, wind, f)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def add_other_forces(x, v, t, wind, wind_force, f):
+    """f += the forces beyond gravity and springs, each through its pointer
+    (System.kernels), called only when the scene has it (the pointer is None, which numba
+    prunes, or absent otherwise): wind.add_wind_force when `wind.on`. Not inlined: numba
+    prunes a test `is None` only of a function's own argument."""
+    if wind is not None:
+        if wind.on:
+            wind_force(x, v, t, wind, f)
 
 
 # --- helpers for the other integrators (pipeline/integrators/*), added with issue 6 --------

@@ -23,19 +23,28 @@ from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .reach import Reach, new_reach, reach_check
 from .scene import Scene
 from .self_collision import SelfCollisionScratch, self_collide
-from .wind import WindParams, max_wind_speed, pack_wind
+from .wind import WindParams, add_wind_force, max_wind_speed, pack_wind
 
 
 class StepKernels(NamedTuple):
     """The kernels every stepping kernel calls through pointers (shading.jit.KernelPointer),
     compiled once on their own rather than linked into each integrator's stepping kernel
     (numba optimises a linked callee again in every caller): a stepping kernel compiles in
-    about 3.3-3.8 s instead of 4.7-6.5 s (sphere, Verlet, its callees cached)."""
+    about 3.3-3.8 s instead of 4.7-6.5 s (sphere, Verlet, its callees cached).
+
+    A scene with neither wind nor self-collision has None for both passes (and for their
+    params), which numba prunes from its stepping kernel. A scene with either has both: the
+    one it does not use as an absent pointer (never compiled, never called) and params of
+    the same type, so wind, self-collision or both share one stepping kernel per model and
+    integrator. (Giving the lean scenes these params too made their stepping kernel compile
+    about 1.1 s slower, 3.2-3.7 s against 2.0-2.6 s: numba's compile time grows with the
+    arrays the System holds.)"""
 
     internal: KernelPointer  # forces.internal_forces (fem_internal_forces with the FEM)
     collide: KernelPointer  # colliders.collide_all
     stretch: KernelPointer | None  # constraints.limit_stretch; None: the FEM (no Provot)
-    self_collide: KernelPointer | None  # self_collision.self_collide; None: off
+    self_collide: KernelPointer | None  # self_collision.self_collide; absent or None: off
+    wind: KernelPointer | None  # wind.add_wind_force; absent or None: no wind
 
 
 class System(NamedTuple):
@@ -62,24 +71,20 @@ class System(NamedTuple):
     force_dt2: float  # factor of F/m in Verlet's update: dt^2 (the course), see verlet.py
     steps_per_frame: int
     colliders: ColliderTable
-    wind: WindParams | None  # None: no wind (pruned from the kernels)
+    wind: WindParams | None  # still air (`on` False) or None without wind (StepKernels)
     fem: FemParams | None  # the finite-element model; None: the classic springs
     # (offsets, gather_order, exists, rest, stiffness) for kernels that take fields, not the
     # System (the same types in every System: one compile per model); None with the FEM
     springs: tuple | None
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
-    scratch: tuple | None  # SelfCollisionScratch.as_tuple(); None: off (pruned from the kernels)
+    self_collision: bool  # the scene turns self-collision on
+    scratch: tuple | None  # SelfCollisionScratch.as_tuple(), for no points or None when off
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.spring_forces
     mask: tuple  # scratch of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
-
-    @property
-    def self_collision(self) -> bool:
-        """Whether the scene turns self-collision on (for Python; kernels test the scratch)."""
-        return self.scratch is not None
 
 
 # numba types a kernel's arguments in C when it can fingerprint them (arrays, numbers and
@@ -110,6 +115,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
     sim = scene.simulation
     limit, limit_sq_lo = stretch_limits(model.rest)
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
+    either = scene.wind is not None or scene.self_collision  # see StepKernels
     centre = model.x0.mean(axis=1)
     extent = max([float(np.linalg.norm(np.subtract(c.pivot, centre))) for c in scene.colliders]
                  + [0.0]) + math.hypot(model.width, model.height)
@@ -137,11 +143,13 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         force_dt2=dt * dt,
         steps_per_frame=int(sim.steps_per_frame),
         colliders=pack_colliders(scene.colliders),
-        wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh),
+        wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh) if either else None,
         fem=model.fem,
         springs=None,
         needs_velocity=scene.wind is not None,
-        scratch=SelfCollisionScratch(model.n).as_tuple() if scene.self_collision else None,
+        self_collision=bool(scene.self_collision),
+        scratch=(SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple()
+                 if either else None),
         spring_force=spring_force_buffer(model.n, model.nw),
         mask=candidate_mask(model.n),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
@@ -167,7 +175,9 @@ def step_kernels(s: System) -> StepKernels:
             field, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)),
         self_collide=None if s.scratch is None else KernelPointer(self_collide, (
             field, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
-            s.scratch)))
+            s.scratch), present=s.self_collision),
+        wind=None if s.wind is None else KernelPointer(
+            add_wind_force, (field, field, 0.0, s.wind, field), present=s.wind.on))
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
@@ -313,8 +323,8 @@ def position_passes(x, last, system, t_start):
     k = s.kernels
     reach_check(x, s.reach, s.colliders.active, s.thickness)
     _self_collision_pass(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
-                         s.steps_per_frame, s.scratch, k.self_collide, s.reach.self_on,
-                         s.reach.counts)
+                         s.steps_per_frame, s.scratch, k.self_collide, s.self_collision,
+                         s.reach.self_on, s.reach.counts)
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     _classic_stretch_limit(x, k.stretch, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo,
@@ -325,10 +335,10 @@ def position_passes(x, last, system, t_start):
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _self_collision_pass(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch,
-                         self_collide, self_on, counts):
-    # numba prunes the pass when the scene turns self-collision off (the pointer None): a
-    # scene without it never compiles self_collide (5 s on a first run)
-    if self_collide is not None and self_on[0]:
+                         self_collide, on, self_on, counts):
+    # `self_collide` is None (numba prunes the pass) or absent (never compiled: 5 s on a
+    # first run) when the scene turns self-collision off (`on` False)
+    if self_collide is not None and on and self_on[0]:
         counts[1] += 1
         self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
 

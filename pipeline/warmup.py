@@ -125,33 +125,30 @@ def _cache_index(disp) -> list[tuple]:
 
 
 def kernel_pointers(system) -> list:
-    """The System's KernelPointers: the stepping kernels' passes (System.kernels), the
-    colliders' point range and mesh projection, the wind's band and the FEM's elements."""
+    """The System's KernelPointers that its kernels call: the stepping kernels' passes
+    (System.kernels), the colliders' point range and mesh projection, the wind's band and
+    the FEM's elements (not the absent ones of passes the scene does not use)."""
     table = system.colliders
-    pointers = [p for p in system.kernels if p is not None] + [table.range, table.mesh]
+    pointers = [*system.kernels, table.range, table.mesh]
     if system.wind is not None:
         pointers.append(system.wind.band)
     if system.fem is not None:
         pointers += [system.fem.triangles, system.fem.hinges]
-    return pointers
+    return [p for p in pointers if p is not None and p.present]
 
 
 def sim_jobs(system) -> list[Job]:
     """The kernels every integrator calls once per step (and a FEM cloth's stability limit),
-    with arguments of the types the integrators pass (self-collision only when the scene
-    turns it on: otherwise numba prunes it from the stepping kernel). Most are called
-    through pointers (shading.jit.KernelPointer): jobs of their own, not compiled with their
-    callers."""
+    with arguments of the types the integrators pass (wind and self-collision only when the
+    scene has them). Most are called through pointers (shading.jit.KernelPointer): jobs of
+    their own, not compiled with their callers."""
     s = system
     x = np.ascontiguousarray(s.x0, dtype=np.float64)
-    last, v, f = x.copy(), np.zeros_like(x), np.zeros_like(x)
-    linked = {"pipeline.wind:add_wind_force": (x, v, 0.0, s.wind, f),
-              "pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
+    last, f = x.copy(), np.zeros_like(x)
+    linked = {"pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
               "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass,
                                                s.slack_speed),
               "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
-    if s.wind is None:  # pruned from the stepping kernel
-        del linked["pipeline.wind:add_wind_force"]
     jobs = [Job(n, a, True) for n, a in linked.items()]
     if s.fem is not None:  # the stability limit's (system.stability_limit)
         jobs.append(Job("pipeline.fem:fem_filtered_jacobian_product", (s.fem.x_rest, s.fem, x, f)))

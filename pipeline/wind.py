@@ -42,8 +42,12 @@ _F0, _F1, _F2, _FHALF = np.float32(0.0), np.float32(1.0), np.float32(2.0), np.fl
 
 class WindParams(NamedTuple):
     """The wind packed for the kernels. `phase`, `point` and `tri` are scratch (one
-    WindParams per simulation); the band count is point.shape[0]."""
+    WindParams per simulation); the band count is point.shape[0]. Still air: `on` False,
+    empty scratch and the band pointer absent, of the same numba type as a wind's (a scene
+    with self-collision and no wind shares the stepping kernel of one with wind: see
+    system.StepKernels)."""
 
+    on: bool
     gusty: bool
     nw: int
     nh: int
@@ -58,12 +62,18 @@ class WindParams(NamedTuple):
     band: KernelPointer | None = None  # _band for these params (pack_wind); None inside it
 
 
-def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams | None:
-    """The scene's `Wind` for an nw x nh cloth, gusts seeded by `seed`; None without wind
-    (the kernels are then compiled without the wind code at all).
-    `bands`: work items of the parallel loop (0: one per thread, MIN_BAND_ROWS rows at least)."""
+def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams:
+    """The scene's `Wind` for an nw x nh cloth, gusts seeded by `seed`; still air (`on`
+    False) without wind. `bands`: work items of the parallel loop (0: one per thread,
+    MIN_BAND_ROWS rows at least)."""
+    field = types.float64[:, ::1]  # positions, velocities and forces: (3, N)
     if wind is None:
-        return None
+        w = WindParams(False, False, nw, nh, np.zeros(3), 0.0, 0.0,
+                       np.zeros((8, GUST_MODES), order="F"),  # as the vstack below
+                       np.zeros(GUST_MODES, np.float32),
+                       np.zeros((1, 6, 0), np.float32), np.zeros((1, 2, 3, 0), np.float32))
+        return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0)),
+                                             present=False))
     bands = bands or max(1, min(numba.config.NUMBA_NUM_THREADS, nh // MIN_BAND_ROWS))
     rows = -(-nh // bands)
     velocity = np.array(wind.velocity, dtype=np.float64)
@@ -76,11 +86,10 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams |
     modes = np.vstack([wavevector.T, amplitude.T, phase0, frequency - wavevector @ velocity])
     rho = wind.air_density
     w = WindParams(
-        wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
+        True, wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
         rho * wind.lift / 108.0, modes, np.zeros(GUST_MODES, np.float32),
         np.zeros((bands, 6, (rows + 2) * nw), np.float32),
         np.zeros((bands, 2, 3, (rows + 2) * nw + 1), np.float32))
-    field = types.float64[:, ::1]  # positions, velocities and forces: (3, N)
     return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0))))
 
 
@@ -249,12 +258,12 @@ def _all_bands(x, v, band, w, f):
 
 @njit(cache=True, nogil=True)
 def add_wind_force(x, v, t, w, f):
-    """f += the aerodynamic force at positions x, velocities v (3, N), time t (s); nothing
-    when w is None (numba prunes the branch: no wind code is compiled for such a call).
-    _band is called through w.band (shading.jit.KernelPointer): linked in, numba optimised
-    its code again in this kernel, in the parallel loop (four times) and in every stepping
-    kernel."""
-    if w is None:
+    """f += the aerodynamic force at positions x, velocities v (3, N), time t (s), for a
+    wind that is `on`. The stepping kernels call it through System.kernels.wind, and it
+    calls _band through w.band (shading.jit.KernelPointer): linked in, numba optimised their
+    code again in every stepping kernel (and _band's in the parallel loop, four times).
+    Still air (`on` False: its band pointer is absent) adds nothing."""
+    if not w.on:
         return
     _set_phases(w, t, x[0, 0], x[1, 0], x[2, 0])
     band, bands = w.band, WindParams(*w[:-1], None)  # _band takes the params without it

@@ -79,15 +79,22 @@ class KernelPointer(WrapperAddressProtocol):
     Pickles as the dispatcher, the argument types and the return type (`returns`: none
     unless given); the address is the kernel's for those types in this process (compiled,
     or loaded from the cache, on first use).
+
+    `present=False` gives a pointer of the same type that is never compiled and must never be
+    called (its address is numba's -1, "no implementation"): a pass a scene does not use
+    (wind, self-collision), whose caller tests a flag first. The caller's type is then the
+    same with or without the pass, so it compiles once for both.
     """
 
-    def __init__(self, dispatcher, args: tuple, returns: types.Type = types.none):
+    def __init__(self, dispatcher, args: tuple, returns: types.Type = types.none,
+                 present: bool = True):
         self.dispatcher = dispatcher
         self.argtypes = argument_types(dispatcher, args)
         self.returns = returns
+        self.present = present
         self._signature = returns(*self.argtypes)
         self.numba_type = types.FunctionType(self._signature)
-        self._address = None
+        self._address = None if present else -1
 
     def signature(self):
         return self._signature
@@ -101,7 +108,7 @@ class KernelPointer(WrapperAddressProtocol):
         return self._address
 
     def __reduce__(self):
-        return KernelPointer, (self.dispatcher, self.argtypes, self.returns)
+        return KernelPointer, (self.dispatcher, self.argtypes, self.returns, self.present)
 
     def __deepcopy__(self, memo) -> KernelPointer:
         return self  # immutable: a copied state or System shares it (and its address)

@@ -171,6 +171,37 @@ def test_a_kernel_pointer_calls_the_kernel_and_both_load_from_the_cache(tmp_path
     assert outputs[1] == outputs[2] == ["True", "0", "0", "1"]  # loaded both
 
 
+def _add_one(x):
+    x[0] += 1.0
+
+
+def _call_if(on, kernel, x):
+    if on:
+        kernel(x)
+    return x[0]
+
+
+def test_an_absent_kernel_pointer_has_the_present_ones_type_and_is_never_compiled():
+    """KernelPointer(present=False), for a pass a scene does not use: typed as the pointer
+    to the kernel, so its caller compiles once for both; the kernel is not compiled for it,
+    and a pickled one (sent to the compile helper, a Dask worker) stays absent."""
+    import numpy as np
+    from shading.jit import KernelPointer, njit
+
+    add_one = njit(nogil=True, no_cpython_wrapper=True)(_add_one)
+    call_if = njit(_call_if)
+    x = np.zeros(2)
+    absent = KernelPointer(add_one, (x,), present=False)
+    assert call_if(False, absent, x) == 0.0
+    assert not add_one.overloads  # never compiled
+    copy = pickle.loads(pickle.dumps(absent))
+    assert not copy.present and copy.numba_type == absent.numba_type
+    present = KernelPointer(add_one, (x,))
+    assert present.numba_type == absent.numba_type
+    assert call_if(True, present, x) == 1.0 and x[0] == 1.0
+    assert len(call_if.overloads) == 1  # one compile served both
+
+
 _LOAD_THEN_COMPILE = """
 import sys
 import numpy as np

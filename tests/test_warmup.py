@@ -15,7 +15,7 @@ from types import SimpleNamespace
 
 import pytest
 
-from conftest import SCENES, cloth_dict, scene_dict
+from conftest import SCENES, cloth_dict, scene_dict, scene_path
 
 from pipeline import warmup
 
@@ -82,8 +82,8 @@ INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
                ["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"]]
 # (the kernels the States point to)
 # called by the stepping kernel directly, not through a pointer
-LINKED = {"pipeline.wind:add_wind_force", "pipeline.system:motion_summary",
-          "pipeline.system:energy_guard", "pipeline.reach:reach_check"}
+LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard",
+          "pipeline.reach:reach_check"}
 
 
 def _scenes() -> list[list[str]]:
@@ -120,6 +120,41 @@ def test_every_job_of_a_scene_has_an_estimate():
         seen |= names
     # the FEM's kernels, a mesh's projection, wind and self-collision all occur
     assert seen == set(warmup.COMPILE_SECONDS)
+
+
+@pytest.mark.parametrize("model", ["classic", "fem"])
+def test_one_stepping_kernel_serves_wind_self_collision_and_both(model):
+    """Every integrator's stepping kernel is typed (compiled) the same for a cloth with
+    wind, self-collision or both (their passes go through pointers, absent when off): a
+    scene with one after a scene with the other compiles that pass only, not the stepping
+    kernel again. A cloth with neither keeps both None (numba prunes them: the README
+    scene's lean kernel). The passes are compiled (jobs) only where the scene has them."""
+    from pipeline.scene import INTEGRATORS, load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.system import build_system
+    from shading.jit import argument_types
+
+    wind = 'wind={"velocity": [3.0, 0.0, 1.0], "gust": 1.0}'
+    self_on = "simulation.self_collision=true"
+    base = ["simulation.self_collision=false", f'simulation.model="{model}"']
+    systems = {}
+    for extra in ([], [wind], [self_on], [wind, self_on]):
+        scene = load_scene(scene_path("pinned2"), overrides=base + extra)
+        systems[tuple(extra)] = build_system(scene, cloth_model(scene))
+    for extra, system in systems.items():
+        names = {job.name for job in warmup.sim_jobs(system)}
+        assert ("pipeline.wind:add_wind_force" in names) == (wind in extra)
+        assert ("pipeline.wind:_band" in names) == (wind in extra)
+        assert ("pipeline.self_collision:self_collide" in names) == (self_on in extra)
+    assert systems[()].wind is None and systems[()].scratch is None
+    for integrator in INTEGRATORS:
+        kinds = set()
+        for extra, system in systems.items():
+            if not extra:
+                continue
+            job = warmup.integrator_jobs(integrator, system)[0]
+            kinds.add(argument_types(job.dispatcher(), job.args))
+        assert len(kinds) == 1, integrator
 
 
 def test_prepare_comes_before_the_stability_limit(monkeypatch):

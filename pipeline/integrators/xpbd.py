@@ -224,7 +224,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
     kinetic = bound = 0.0
     for step in range(steps):
         t = (first_step + step) * h
-        external_force(x, v, t, s.mass, s.gravity, s.wind, force)
+        external_force(x, v, t, s.mass, s.gravity, s.wind, s.kernels.wind, force)
         for p in range(n):
             for a in range(3):
                 last[a, p] = x[a, p]
