@@ -142,9 +142,9 @@ def force_fields(s) -> tuple:
 @njit(cache=True, nogil=True, inline="always")
 def forces_of(x, v, t, fields, f):
     """total_force from the System's fields (force_fields): inlined in kernels; called from
-    Python it compiles once per model and System kind (system.StepKernels; its entry point unboxes these fields; one
-    taking the System compiled again for every System type, 2-3 s each, and unboxed all of
-    it)."""
+    Python it compiles once per model and System kind (system.StepKernels; its entry point
+    unboxes these fields; one taking the System compiled again for every System type,
+    2-3 s each, and unboxed all of it)."""
     (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind,
      wind_force, internal) = fields
     internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)

@@ -66,14 +66,23 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams:
     """The scene's `Wind` for an nw x nh cloth, gusts seeded by `seed`; still air (`on`
     False) without wind. `bands`: work items of the parallel loop (0: one per thread,
     MIN_BAND_ROWS rows at least)."""
+    w = _still_air(nw, nh) if wind is None else _moving_air(wind, seed, nw, nh, bands)
     field = types.float64[:, ::1]  # positions, velocities and forces: (3, N)
-    if wind is None:
-        w = WindParams(False, False, nw, nh, np.zeros(3), 0.0, 0.0,
-                       np.zeros((8, GUST_MODES), order="F"),  # as the vstack below
-                       np.zeros(GUST_MODES, np.float32),
-                       np.zeros((1, 6, 0), np.float32), np.zeros((1, 2, 3, 0), np.float32))
-        return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0)),
-                                             present=False))
+    return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0)),
+                                         present=w.on))
+
+
+def _still_air(nw: int, nh: int) -> WindParams:
+    """Params of no wind, of the same numba type as a wind's (empty scratch; pack_wind sets
+    the band, absent)."""
+    return WindParams(False, False, nw, nh, np.zeros(3), 0.0, 0.0,
+                      np.zeros((8, GUST_MODES), order="F"),  # as _moving_air's vstack
+                      np.zeros(GUST_MODES, np.float32), np.zeros((1, 6, 0), np.float32),
+                      np.zeros((1, 2, 3, 0), np.float32))
+
+
+def _moving_air(wind, seed: int, nw: int, nh: int, bands: int) -> WindParams:
+    """Params of the scene's wind, its gusts seeded by `seed` (pack_wind sets the band)."""
     bands = bands or max(1, min(numba.config.NUMBA_NUM_THREADS, nh // MIN_BAND_ROWS))
     rows = -(-nh // bands)
     velocity = np.array(wind.velocity, dtype=np.float64)
@@ -85,12 +94,11 @@ def pack_wind(wind, seed: int, nw: int, nh: int, bands: int = 0) -> WindParams:
     amplitude *= 8.0 * wind.gust / np.sqrt(WAVE_MEAN_SQUARE * (amplitude**2).sum(axis=0))
     modes = np.vstack([wavevector.T, amplitude.T, phase0, frequency - wavevector @ velocity])
     rho = wind.air_density
-    w = WindParams(
+    return WindParams(
         True, wind.gust > 0.0, nw, nh, velocity, rho * wind.drag / 108.0,
         rho * wind.lift / 108.0, modes, np.zeros(GUST_MODES, np.float32),
         np.zeros((bands, 6, (rows + 2) * nw), np.float32),
         np.zeros((bands, 2, 3, (rows + 2) * nw + 1), np.float32))
-    return w._replace(band=KernelPointer(_band, (field, field, w, field, np.int64(0))))
 
 
 def max_wind_speed(wind) -> float:
