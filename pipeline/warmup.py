@@ -44,11 +44,14 @@ from .progress import bar, counter
 # old 5.0 s since their two parallel loops are one kernel, five alternating runs). They
 # split the kernels between this process and the helper (`split`) and give the estimate of
 # the first-run message.
+# `_collide_range` since numba's inliner copies a callee once (shading.jit._InlinerCopies):
+# 0.57 of its time before, three rounds alternately in one process (2.1-2.5 s against
+# 2.9-4.8 s, 2026-11-25 afternoon).
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
 COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
-                   "pipeline.colliders:_collide_range": 2.7,
+                   "pipeline.colliders:_collide_range": 1.5,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
                    "pipeline.forces:internal_forces": 4.0,
                    "pipeline.forces:fem_internal_forces": 1.5,
