@@ -59,9 +59,12 @@ def _version() -> str:
 
 
 def _shader_names() -> tuple[str, ...]:
-    from shading import SHADERS
+    """The shader names, from the scene format's list (pipeline.scene.SHADERS, the same
+    names as the renderer's registry: tested), so that --help, --version and a bad flag
+    answer without importing the renderer and numba (0.5 s)."""
+    from .scene import SHADERS
 
-    return tuple(SHADERS)
+    return SHADERS
 
 
 def _positive_float(name):

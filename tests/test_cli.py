@@ -23,6 +23,8 @@ from PIL import Image
 from pipeline import cli
 from pipeline.cli import main
 
+from conftest import child_env
+
 ROOT = Path(__file__).resolve().parents[1]
 
 SMALL = {
@@ -358,6 +360,23 @@ def test_help_lists_shaders(env, capsys):
 def test_version(capsys):
     code, out, _ = run(capsys, "--version")
     assert code == 0 and out.startswith("render (clothpipe) ")
+
+
+def test_the_cli_shader_list_is_the_renderers():
+    from pipeline.cli import _shader_names
+    from shading import REGISTRY
+
+    assert sorted(_shader_names()) == sorted(REGISTRY)
+
+
+@pytest.mark.parametrize("flag", ["--help", "--version"])
+def test_help_and_version_load_no_numba(flag, tmp_path):
+    code = ("import sys; from pipeline.cli import main\n"
+            "try:\n    main(sys.argv[1:])\nexcept SystemExit:\n    pass\n"
+            "assert 'numba' not in sys.modules, 'numba was imported'")
+    r = subprocess.run([sys.executable, "-c", code, flag], cwd=tmp_path, env=child_env(),
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
 
 
 # ---------------------------------------------------------------- bad input: exit 2
