@@ -19,9 +19,12 @@ walk over the spring list.
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
+from numba.core import types
 from numba.extending import register_jitable
-from shading.jit import njit, prange
+from shading.jit import KernelPointer, njit, prange
 
 from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
                   fem_jacobian_diagonal)
@@ -56,15 +59,19 @@ def _chunk(c, n):
 # negative and emits no wraparound select per load, and with error_model="numpy" no
 # zero-division branch either, so LLVM vectorises them. Same arithmetic, same bits.
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
-    """f_d[:, p] = force of the spring (d, p) on p for p in [lo, hi) (0 where none)."""
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+def _direction_forces(x, offsets, exists, rest_lengths, stiffness, spring_force, d, lo, hi):
+    """spring_force[d, :, p] = force of the spring (d, p) on p for p in [lo, hi) (0 where
+    none). Takes whole arrays and d, not their rows, which the caller's parallel loop
+    would make as views (a reference count raised and dropped per call); without numba's
+    reference counts (`_nrt=False`: nothing here allocates), as _gather."""
+    off, k, f_d = offsets[d], stiffness[d], spring_force[d]
     start = min(max(lo, -off), hi)  # the neighbour p + off must be a point
     f_d[:, lo:start] = 0.0
     m = hi - start
     ax, ay, az = x[0, start:hi], x[1, start:hi], x[2, start:hi]
     bx, by, bz = x[0, start + off:hi + off], x[1, start + off:hi + off], x[2, start + off:hi + off]
-    ex, rest = exists_d[start:hi], rest_d[start:hi]
+    ex, rest = exists[d, start:hi], rest_lengths[d, start:hi]
     fx, fy, fz = f_d[0, start:hi], f_d[1, start:hi], f_d[2, start:hi]
     for i in range(m):
         dx = bx[i] - ax[i]
@@ -78,7 +85,7 @@ def _direction_forces(x, off, exists_d, rest_d, k, f_d, lo, hi):
         fz[i] = (dz / length) * s if ok else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
 def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
     """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
@@ -100,21 +107,46 @@ def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
                 out[i] -= other[i]
 
 
+class SpringKernels(NamedTuple):
+    """spring_forces' two passes, called through pointers from its parallel loops: numba
+    compiles a parallel loop's body several times and optimises a linked callee again in
+    each copy, so they compile once, on their own: internal_forces and the two passes in
+    2.9-3.3 s of CPU instead of 5.4-5.7 s (the README scene on an empty cache, three rounds
+    alternately, 2026-11-26). A call through a pointer inside a parallel loop costs about
+    5 ns (measured; the stepping kernel unboxes the pointers once per call, not per step)."""
+
+    direction: KernelPointer  # _direction_forces
+    gather: KernelPointer  # _gather
+
+
+def spring_kernels(offsets, exists, rest, stiffness, spring_force, order, mass,
+                   gravity) -> SpringKernels:
+    """Pointers to the passes, typed as spring_forces calls them."""
+    field, index = types.float64[:, ::1], types.int64  # positions and forces (3, N)
+    return SpringKernels(
+        KernelPointer(_direction_forces, (field, offsets, exists, rest, stiffness, spring_force,
+                                          index, index, index)),
+        KernelPointer(_gather, (spring_force, offsets, order, mass, gravity, field, index,
+                                index)))
+
+
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f):
+def spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
+                  passes, f):
     """f[:] = mass * gravity + the spring forces at positions x (3, N); mass is (N,), and
-    spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none).
-    Both parallel loops in one kernel: the first as a parallel kernel of its own, called
-    here, made the first compile 1-2 s longer (its parallel machinery compiled twice)."""
+    spring_force[d, :, p] = force of spring (d, p) on its creating point p (0 if none);
+    `passes` the SpringKernels. Both parallel loops in one kernel: the first as a parallel
+    kernel of its own, called here, made the first compile 1-2 s longer (its parallel
+    machinery compiled twice)."""
     n = x.shape[1]
+    direction, gather = passes
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
-            _direction_forces(x, offsets[d], exists[d], rest[d], stiffness[d], spring_force[d],
-                              lo, hi)
+            direction(x, offsets, exists, rest, stiffness, spring_force, d, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        _gather(spring_force, offsets, order, mass, gravity, f, lo, hi)
+        gather(spring_force, offsets, order, mass, gravity, f, lo, hi)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -136,7 +168,8 @@ def force_fields(s) -> tuple:
     when Python calls it, inlined in kernels). The pointer comes last: numba tries to unify
     a plain tuple starting with a function as a tuple of functions, and warns."""
     return (s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-            s.gravity, s.spring_force, s.wind, s.kernels.wind, s.kernels.internal)
+            s.gravity, s.spring_force, s.kernels.springs, s.wind, s.kernels.wind,
+            s.kernels.internal)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -145,9 +178,10 @@ def forces_of(x, v, t, fields, f):
     Python it compiles once per model and System kind (system.StepKernels; its entry point
     unboxes these fields; one taking the System compiled again for every System type,
     2-3 s each, and unboxed all of it)."""
-    (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, wind,
+    (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, passes, wind,
      wind_force, internal) = fields
-    internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)
+    internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
+             passes, f)
     add_other_forces(x, v, t, wind, wind_force, f)
 
 
@@ -157,15 +191,17 @@ def forces_of(x, v, t, fields, f):
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                    spring_force, f):
-    """f[:] = gravity + the springs' forces (the classic model: fem is None). Called through
-    System.kernels.internal (a KernelPointer), as fem_internal_forces with the FEM."""
-    spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, f)
+                    spring_force, passes, f):
+    """f[:] = gravity + the springs' forces (the classic model: fem is None; `passes` the
+    SpringKernels). Called through System.kernels.internal (a KernelPointer), as
+    fem_internal_forces with the FEM."""
+    spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
+                  passes, f)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                        spring_force, f):
+                        spring_force, passes, f):
     """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). One kernel
     with internal_forces' `if fem is None` compiled the springs' forces too: numba prunes
     such a branch only when the argument's type is None."""

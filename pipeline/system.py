@@ -17,8 +17,8 @@ from shading.jit import KernelPointer, njit
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
 from .fem import FemParams, estimate_omega_max
-from .forces import (direction_offsets, fem_internal_forces, gather_order, internal_forces,
-                     spring_force_buffer)
+from .forces import (SpringKernels, direction_offsets, fem_internal_forces, gather_order,
+                     internal_forces, spring_force_buffer, spring_kernels)
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .reach import Reach, new_reach, reach_check
 from .scene import Scene
@@ -41,6 +41,7 @@ class StepKernels(NamedTuple):
     arrays the System holds.)"""
 
     internal: KernelPointer  # forces.internal_forces (fem_internal_forces with the FEM)
+    springs: SpringKernels | None  # the springs' passes internal_forces calls; None: the FEM
     collide: KernelPointer  # colliders.collide_all
     stretch: KernelPointer | None  # constraints.limit_stretch; None: the FEM (no Provot)
     self_collide: KernelPointer | None  # self_collision.self_collide; absent or None: off
@@ -166,10 +167,14 @@ def build_system(scene: Scene, model: ClothModel) -> System:
 def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
+    springs = None if s.fem is not None else spring_kernels(
+        s.offsets, s.exists, s.rest, s.stiffness, s.spring_force, s.gather_order, s.mass,
+        s.gravity)
     return StepKernels(
         internal=KernelPointer(internal_forces if s.fem is None else fem_internal_forces, (
             field, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-            s.gravity, s.spring_force, field)),
+            s.gravity, s.spring_force, springs, field)),
+        springs=springs,
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),
         stretch=None if s.fem is not None else KernelPointer(limit_stretch, (
             field, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)),

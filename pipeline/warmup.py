@@ -47,13 +47,18 @@ from .progress import bar, counter
 # `_collide_range` since numba's inliner copies a callee once (shading.jit._InlinerCopies):
 # 0.57 of its time before, three rounds alternately in one process (2.1-2.5 s against
 # 2.9-4.8 s, 2026-11-25 afternoon).
+# The classic internal forces since their two passes are kernels of their own, called
+# through pointers (forces.SpringKernels): 1.4-1.7 s and 0.7-0.8 s for each pass, against
+# 5.4-5.7 s before, three rounds alternately in one process (2026-11-26), scaled by 0.73,
+# the old estimate over the old time.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
 COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.colliders:_collide_range": 1.5,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
-                   "pipeline.forces:internal_forces": 4.0,
+                   "pipeline.forces:internal_forces": 1.1,
+                   "pipeline.forces:_direction_forces": 0.55, "pipeline.forces:_gather": 0.55,
                    "pipeline.forces:fem_internal_forces": 1.5,
                    "pipeline.self_collision:self_collide": 3.1,
                    "pipeline.constraints:limit_stretch": 2.5,
@@ -132,7 +137,9 @@ def kernel_pointers(system) -> list:
     (System.kernels), the colliders' point range and mesh projection, the wind's band and
     the FEM's elements (not the absent ones of passes the scene does not use)."""
     table = system.colliders
-    pointers = [*system.kernels, table.range, table.mesh]
+    kernels = system.kernels
+    pointers = [*kernels._replace(springs=None), *(kernels.springs or ()), table.range,
+                table.mesh]
     if system.wind is not None:
         pointers.append(system.wind.band)
     if system.fem is not None:

@@ -68,7 +68,8 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
 COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
           "pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"]
-MODELS = [["pipeline.forces:internal_forces", "pipeline.constraints:limit_stretch"],
+MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces",
+           "pipeline.forces:_gather", "pipeline.constraints:limit_stretch"],
           ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
            "pipeline.fem:_hinges", "pipeline.fem:fem_filtered_jacobian_product"]]
 TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
