@@ -60,8 +60,8 @@ def _version() -> str:
 
 def _shader_names() -> tuple[str, ...]:
     """The shader names, from the scene format's list (pipeline.scene.SHADERS, the same
-    names as the renderer's registry: tested), so that --help, --version and a bad flag
-    answer without importing the renderer and numba (0.5 s)."""
+    names as the renderer's registry: tested), so that --help and --version answer
+    without importing the renderer and numba (0.5 s)."""
     from .scene import SHADERS
 
     return SHADERS
