@@ -32,10 +32,7 @@ FORMATS = ("gif", "mp4", "png")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    try:
-        shaders = ", ".join(_cli._shader_names())
-    except Exception as exc:  # noqa: BLE001 - help must work even if shading is broken
-        shaders = f"(unavailable: {exc})"
+    shaders = ", ".join(_cli._shader_names())
     p = _cli._Parser(
         prog=f"{_cli.PROG} batch", allow_abbrev=False,
         description="Render many scenes, one output per scene named after it (OUT/A.gif for "

@@ -196,10 +196,7 @@ def cluster_requested(args) -> bool:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    try:
-        shaders = ", ".join(_shader_names())
-    except Exception as exc:  # noqa: BLE001 - help must work even if shading is broken
-        shaders = f"(unavailable: {exc})"
+    shaders = ", ".join(_shader_names())
     import textwrap
 
     def para(*texts):
@@ -350,10 +347,7 @@ def _plan(args, scene) -> Plan:
 
 def check_shader(shader: str) -> None:
     """UsageError for a shader name that does not exist."""
-    try:
-        names = _shader_names()
-    except Exception:  # noqa: BLE001 - the renderer is needed anyway: fail later, loudly
-        return
+    names = _shader_names()
     if shader not in names:
         raise UsageError(f"unknown shader {shader!r} (choose from: {', '.join(names)})")
 
