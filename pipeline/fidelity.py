@@ -28,13 +28,13 @@ that no point ends a step inside one. Then:
    PILOT_TARGET tolerances (a third run at that n, at least 3 n1, checks the first order).
    The shot goes on from the pilot run with the fewest steps >= n where that costs no more
    than starting again at n (the run's frames are replayed: the same frames bit for bit),
-   else starts again at n. Under contact, self-collision or wind the classic model's motion
-   depends on the step chaotically, and the file's steps stay (no pilot).
+   else starts again at n. Under contact, self-collision or gusty wind the classic model's
+   motion depends on the step chaotically, and the file's steps stay (no pilot).
 2. The integrator: Verlet, unless its stability floor makes implicit Euler cheaper per frame
    at the measured cost ratio of one implicit step to one Verlet step (IMPLICIT_COST).
 3. Passes: pipeline.reach skips self-collision and colliders where nothing can touch
    (bit-identical to running them).
-4. Sleep: with nothing in the scene varying in time (no wind, no keyframe still to come)
+4. Sleep: with nothing in the scene varying in time (no gusts, no keyframe still to come)
    and every point moving less than SLEEP_FRACTION of the tolerance per frame for
    SLEEP_TIME seconds, the cloth sleeps: later frames repeat it at no cost, until a
    keyframe starts.
@@ -111,7 +111,7 @@ class Plan:
     predicted_cost: float = 1.0  # steps per frame against exact's, before sleeping
     reasons: list[str] = field(default_factory=list)
     pilot: dict | None = None  # auto, classic model: the pilot's figures once it has run
-    chaotic: bool = False  # auto, classic model with contact or wind: the file's steps
+    chaotic: bool = False  # auto, classic model with contact or gusts: the file's steps
     grid: tuple[int, int] = (0, 0)  # points across and down: the file's (auto keeps it)
 
     def as_dict(self) -> dict:
@@ -132,7 +132,7 @@ class Plan:
                            "count is fixed for the shot; docs/fidelity.md)")
             elif self.model == "classic" and self.chaotic:
                 out.append(f"steps per frame {self.steps_per_frame_start}, as the file says: "
-                           "under contact, self-collision or wind the classic model's motion "
+                           "under contact, self-collision or gusts the classic model's motion "
                            "depends on the step chaotically, so more steps buy no accuracy "
                            "(docs/fidelity.md)")
             elif self.model == "classic":
@@ -187,11 +187,16 @@ def screen_distance(camera, a: np.ndarray, b: np.ndarray) -> float:
     return float(np.max(d)) if len(d) else 0.0
 
 
+def gusty(scene: Scene) -> bool:
+    """The scene's air varies in time (a steady wind does not)."""
+    return scene.wind is not None and scene.wind.gust > 0
+
+
 def wake_time(scene: Scene, t: float) -> float | None:
     """The earliest time >= t at which something in the scene varies in time (now, if it
-    does now; None if never): wind always varies, a keyframed collider while before its
+    does now; None if never): gusts always vary, a keyframed collider while before its
     last key."""
-    if scene.wind is not None:
+    if gusty(scene):
         return t
     firsts = [c.keyframes[0].time for c in scene.colliders if c.keyframes]
     lasts = [c.keyframes[-1].time for c in scene.colliders if c.keyframes]
@@ -235,9 +240,10 @@ class AutoStepper:
         self.adaptive = s.model != "classic"
         self.n_min = coarse if self.adaptive else max(2, self.floor)
         self.pilot: dict | None = None  # the classic pilot's figures, once it has run
-        #: the classic model's motion under contact or wind depends on the step chaotically
-        #: (docs/fidelity.md): no pilot there, the file's steps
-        self.chaotic = bool(scene.colliders or sim.system.self_collision or scene.wind)
+        #: the classic model's motion under contact or gusts depends on the step
+        #: chaotically (docs/fidelity.md): no pilot there, the file's steps; a steady wind
+        #: gets the pilot, whose third run checks that more steps bring more accuracy
+        self.chaotic = bool(scene.colliders or sim.system.self_collision or gusty(scene))
         self.shot_seconds = shot_seconds
         self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
         #: (steps per frame, per-frame states, end state) of the pilot run the shot goes on
@@ -635,7 +641,7 @@ class AutoStepper:
         moved_m = math.sqrt(float(np.max(np.einsum("ij,ij->i", diff, diff)))) if len(x) else 0.0
         self.budget = budget_for(moved_m, self.sim.system.thickness)
         t = self.frame * self.frame_dt
-        if self.scene.wind is not None:  # never sleeps
+        if gusty(self.scene):  # never sleeps
             return
         if self.frame % REARM_EVERY == 1 or self.mpp is None:  # changes slowly
             self.mpp = metres_per_pixel(self.camera, x)
@@ -730,8 +736,10 @@ def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:
     order and damps, and needs at least as many steps for the same error), with why."""
     sim = scene.simulation
     frame_dt = 1.0 / sim.frames_per_sec
-    floor = (max(2, math.ceil(COARSE_RATIO * math.ceil(frame_dt / (STABILITY_MARGIN * dt_max))))
-             if math.isfinite(dt_max) else 2)
+    floor = math.ceil(frame_dt / (STABILITY_MARGIN * dt_max)) if math.isfinite(dt_max) else 1
+    if sim.model != "classic":  # the FEM's error estimate runs a coarser pass too
+        floor = math.ceil(COARSE_RATIO * floor)
+    floor = max(2, floor)
     implicit = IMPLICIT_COST[sim.model] * sim.steps_per_frame
     why = (f"Verlet needs >= {floor} steps per frame for stability (dt_max {dt_max:.3g} s); "
            f"implicit Euler at the file's {sim.steps_per_frame} would cost about "
@@ -781,7 +789,7 @@ def make_plan(sim) -> Plan:
         plan.pilot, plan.chaotic = st.pilot, st.chaotic and not st.adaptive
         plan.predicted_cost = (CHECK_COST if st.adaptive else 1.0) * st.n / s.steps_per_frame
         wake = wake_time(scene, 0.0)
-        plan.sleeps = ("never: the wind varies in time" if scene.wind is not None else
+        plan.sleeps = ("never: the gusts vary in time" if gusty(scene) else
                        "when at rest for " f"{SLEEP_TIME:g} s" + (
                            "" if wake is None else " outside the keyframed motion"))
         plan.reasons = sim.integrator_reasons

@@ -233,6 +233,27 @@ def test_the_pilot_is_skipped_under_contact_and_keeps_the_file_steps():
     assert "as the file says: under contact" in "\n".join(sim.plan.lines())
 
 
+
+def test_a_steady_wind_gets_the_pilot_and_gusts_keep_the_file_steps():
+    # a steady wind neither varies in time nor makes the motion chaotic: the pilot chooses
+    # the steps (a tight tolerance: more than the file's) and the cloth may sleep; gusts keep
+    # the file's steps and never sleep
+    steady = corner_hung(12)
+    steady["wind"] = {"velocity": [0.0, 0.0, 3.0]}
+    sim = pipeline.Simulation(auto(steady, 0.1))
+    run_frames(sim, 1)
+    st = sim.stepper
+    assert not st.chaotic and st.pilot["steps"][:2] == (8, 16) and st.n > 30
+    assert "when at rest" in sim.plan.sleeps
+    gusty = json.loads(json.dumps(steady))
+    gusty["wind"]["gust"] = 1.0
+    sim = pipeline.Simulation(auto(gusty, 0.1))
+    run_frames(sim, 3)
+    assert sim.stepper.chaotic and sim.stepper.pilot is None
+    assert sim.stepper.steps_used == [30] * 3
+    lines = "\n".join(sim.plan.lines())
+    assert "under contact, self-collision or gusts" in lines and "never: the gusts" in lines
+
 # --- skipping passes changes nothing -------------------------------------------------------
 
 def skipping_pair(data: dict, frames: int):
