@@ -242,7 +242,8 @@ class AutoStepper:
         self.pilot: dict | None = None  # the classic pilot's figures, once it has run
         #: the classic model's motion under contact or gusts depends on the step
         #: chaotically (docs/fidelity.md): no pilot there, the file's steps; a steady wind
-        #: gets the pilot, whose third run checks that more steps bring more accuracy
+        #: gets the pilot (whose third run, where it asks for more steps, checks that they
+        #: bring accuracy)
         self.chaotic = bool(scene.colliders or sim.system.self_collision or gusty(scene))
         self.shot_seconds = shot_seconds
         self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
