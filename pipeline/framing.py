@@ -61,6 +61,12 @@ class Framing:
         self._max = np.maximum(self._max, [np.max(x + ax), np.max(ax - x), np.max(y + ay),
                                            np.max(ay - y), np.max(z), np.max(-z)])
 
+    def include(self, other: Framing) -> None:
+        """Frame what `other` (the same image size and field of view) frames too."""
+        if (other.width, other.height, other.vfov) != (self.width, self.height, self.vfov):
+            raise ValueError("framings of different images cannot be combined")
+        self._max = np.maximum(self._max, other._max)
+
     def camera(self) -> Camera:
         """The nearest camera looking down -z (up +y) that frames every point added."""
         x_plus, x_minus, y_plus, y_minus, z_max, z_min = self._max * [1, 1, 1, 1, 1, -1]

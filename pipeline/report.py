@@ -264,6 +264,10 @@ class ReportPlan:
     gif_fps: float = DEFAULT_GIF_FPS
     gif_times: list[float] = field(default_factory=list)
     gif_frames: list[int] = field(default_factory=list)
+    #: simulator frames of the whole shot, 0 to the last time, at `render`'s default rate
+    #: (and every needed frame): a scene with no camera is framed over these, as `render`
+    #: frames its shot
+    shot_frames: list[int] = field(default_factory=list)
     jobs: int = 1
     title: str = ""
     workers: int | None = None  # --workers: simulate on a LocalCluster of this many
@@ -273,6 +277,11 @@ class ReportPlan:
     @property
     def needed_frames(self) -> list[int]:
         return sorted(set(self.sim_frames) | set(self.gif_frames))
+
+    @property
+    def image_sizes(self) -> list[tuple[int, int]]:
+        """The sizes of the cells and of the GIF's frames."""
+        return sorted({(self.width, self.height), tuple(self.gif_size)})
 
 
 def _shader_list(names: list[str] | None, available: Sequence[str]) -> list[str]:
@@ -374,13 +383,21 @@ def plan_report(args) -> ReportPlan:
         ts = _cli.output_times(n, gif_fps)
         gif_times = [float(t) for t in ts]
         gif_frames = _cli.nearest_sim_frames(ts, sim_fps)
+    sim_frames = _cli.nearest_sim_frames(times, sim_fps)
+    # the shot a scene with no camera is framed over: max(times) seconds as `render`
+    # animates them by default (so a cell is the frame `render --at` draws at that time)
+    fps = _cli.DEFAULT_FPS["gif"]
+    shot = _cli.nearest_sim_frames(_cli.output_times(max(1, round(max(times) * fps)), fps),
+                                   sim_fps)
     jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
     return ReportPlan(
         scene_path=os.fspath(args.scene), out=out, sheet=sheet, gif=gif, shaders=shaders,
-        times=times, sim_frames=_cli.nearest_sim_frames(times, sim_fps), sim_fps=sim_fps,
+        times=times, sim_frames=sim_frames, sim_fps=sim_fps,
         width=int(width), height=int(height), aa=args.aa, overrides=list(args.overrides),
         sweeps=sweeps, variants=variants, gif_size=gif_size, gif_fps=gif_fps,
-        gif_times=gif_times, gif_frames=gif_frames, jobs=max(1, jobs),
+        gif_times=gif_times, gif_frames=gif_frames,
+        shot_frames=sorted(set(shot) | set(sim_frames) | set(gif_frames)),
+        jobs=max(1, jobs),
         title=args.title or Path(args.scene).name, workers=args.workers,
         scheduler=args.scheduler)
 
@@ -396,49 +413,67 @@ class VariantRun:
     error: str | None  # divergence message; frames after it are missing
     warnings: list[str]
     seconds: float  # wall time of the simulation
+    #: {(width, height): pipeline.framing.Framing} of the shot's frames it reached (a scene
+    #: with no camera; empty otherwise)
+    framings: dict = field(default_factory=dict)
 
 
 def simulate_variant(scene_path: str, overrides: Sequence[str], frames: Sequence[int],
                      threads: int | None = None,
-                     on_frame: Callable[[], None] | None = None) -> VariantRun:
+                     on_frame: Callable[[], None] | None = None,
+                     shot: Sequence[int] = (), sizes: Sequence[tuple[int, int]] = ()
+                     ) -> VariantRun:
     """Simulate one variant frame by frame (as `render` does) up to max(frames), keeping a
-    copy of the positions at each frame in `frames`. Runs in a worker process for sweeps:
-    every argument and the result are picklable (on Dask `scene_path` is the file's
-    bytes, a SceneFile). `threads`: numba threads to use here
-    (restored afterwards); the results do not depend on it."""
+    copy of the positions at each frame in `frames`, and, for a scene with no camera, the
+    framing (pipeline.framing) of the frames in `shot` for each image size in `sizes`.
+    Runs in a worker process for sweeps: every argument and the result are picklable (on
+    Dask `scene_path` is the file's bytes, a SceneFile). `threads`: numba threads to use
+    here (restored afterwards); the results do not depend on it."""
     if threads is None:
-        return _simulate(scene_path, overrides, frames, on_frame)
+        return _simulate(scene_path, overrides, frames, on_frame, shot, sizes)
     from .simulation import numba_threads
 
     with numba_threads(threads):
-        return _simulate(scene_path, overrides, frames, on_frame)
+        return _simulate(scene_path, overrides, frames, on_frame, shot, sizes)
 
 
-def _simulate(scene_path, overrides, frames, on_frame) -> VariantRun:
+def _simulate(scene_path, overrides, frames, on_frame, shot, sizes) -> VariantRun:
+    from .framing import Framing, framed_points
     from .scene import load_scene
     from .simulation import DivergenceError, Simulation
 
     t0 = time.perf_counter()
+    wanted = sorted(set(int(f) for f in frames))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = load_scene(scene_path, list(overrides))
-        sim = Simulation(scene)
+        sim = Simulation(scene, shot_seconds=wanted[-1] / scene.simulation.frames_per_sec)
     msgs = [str(w.message).splitlines()[0] for w in caught if str(w.message)]
-    wanted = sorted(set(int(f) for f in frames))
+    framed = set(shot) if scene.camera is None else set()
+    framings = {tuple(size): Framing(*size) for size in sizes} if framed else {}
+
+    def reached(j: int) -> None:
+        if j in framed:
+            points = framed_points(scene, sim.positions, j / scene.simulation.frames_per_sec)
+            for framing in framings.values():
+                framing.add(points)
+
     positions: dict[int, np.ndarray] = {}
     error = None
     current = 0
+    reached(0)
     try:
         for j in wanted:
             while current < j:
                 sim.advance(1)
                 current += 1
+                reached(current)
                 if on_frame is not None:
                     on_frame()
             positions[j] = sim.positions.copy()
     except DivergenceError as exc:
         error = str(exc).strip().splitlines()[0]
-    return VariantRun(positions, error, msgs, time.perf_counter() - t0)
+    return VariantRun(positions, error, msgs, time.perf_counter() - t0, framings)
 
 
 def _simulate_indexed(task: tuple) -> tuple[int, VariantRun]:
@@ -465,15 +500,16 @@ def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
             # one numba thread, as `render` simulates (its "split" pipeline): on a small
             # cloth the kernels' thread barriers cost more than they save
             runs.append(simulate_variant(plan.scene_path, plan.overrides + list(v.overrides),
-                                         frames, threads=1, on_frame=tick))
+                                         frames, threads=1, on_frame=tick,
+                                         shot=plan.shot_frames, sizes=plan.image_sizes))
             if progress is not None and n > 1:
                 progress.update(1)
         return runs
     threads = max(1, (os.cpu_count() or 1) // workers)
     ctx = multiprocessing.get_context("spawn")  # fork after numba threads started is unsafe
     runs: list[VariantRun | None] = [None] * n
-    tasks = [(v.index, plan.scene_path, plan.overrides + list(v.overrides), frames, threads)
-             for v in plan.variants]
+    tasks = [(v.index, plan.scene_path, plan.overrides + list(v.overrides), frames, threads,
+              None, plan.shot_frames, plan.image_sizes) for v in plan.variants]
     with signals.deferred():  # every worker started and sent its set-up, or none
         pool = ctx.Pool(workers)
     try:
@@ -502,7 +538,8 @@ def _simulate_on_dask(plan: ReportPlan, frames: list[int], progress) -> list[Var
     with cluster.connect(plan) as client:
         run = f"clothpipe-report-{uuid.uuid4().hex}"
         futures = {client.submit(simulate_variant, scene, plan.overrides + list(v.overrides),
-                                 frames, 1, key=f"{run}-{v.index}"): v.index
+                                 frames, 1, None, plan.shot_frames, plan.image_sizes,
+                                 key=f"{run}-{v.index}"): v.index
                    for v in plan.variants}
         for future in distributed.as_completed(futures, loop=client.loop):
             runs[futures[future]] = future.result()
@@ -776,18 +813,15 @@ def _renderer(plan: ReportPlan, runs: Sequence[VariantRun]):
 
 
 def frame_shots(plan: ReportPlan, runs: Sequence[VariantRun]) -> dict:
-    """{(width, height): pipeline.framing.Framing} for the cells and the GIF frames: every
-    frame kept of every variant with no camera, so those variants share one view."""
-    from .framing import Framing, framed_points
+    """{(width, height): pipeline.framing.Framing} for the cells and the GIF frames: the
+    whole shot (plan.shot_frames) of every variant with no camera, framed where it ran, so
+    those variants share one view."""
+    from .framing import Framing
 
-    sizes = {(plan.width, plan.height), tuple(plan.gif_size)}
-    shots = {size: Framing(*size) for size in sizes}
-    for v, run in zip(plan.variants, runs):
-        if v.scene.camera is None:
-            for j, positions in run.positions.items():
-                points = framed_points(v.scene, positions, j / plan.sim_fps)
-                for framing in shots.values():
-                    framing.add(points)
+    shots = {size: Framing(*size) for size in plan.image_sizes}
+    for run in runs:
+        for size, framing in run.framings.items():
+            shots[size].include(framing)
     return shots
 
 

@@ -223,6 +223,29 @@ def test_shader_all_is_the_same_as_shaders_all(tmp_path):
 # ------------------------------------------------------------------------ sweeps
 
 
+def test_a_cell_is_the_frame_render_draws_at_that_time(tmp_path):
+    # a scene with no camera is framed over its whole shot, as `render` frames it; framed
+    # over the shown frames alone, a cloth lying on the floor at 1 s and 3 s put the eye at
+    # its height (edge on: every cell was empty)
+    from pipeline import cli
+
+    data = {k: v for k, v in SMALL.items() if k != "sphere"}
+    data["plane"] = {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5}
+    scene = _write_scene(tmp_path, data)
+    out = tmp_path / "report.html"
+    assert main([str(scene), "--out", str(out), "--at", "1,3", "--size", "64x48",
+                 "--shader", "phong", "--quiet"]) == 0
+    cells = {f["attrs"]["data-time"]: decode(f["img"]["src"])
+             for f in parse_report(out).figures}
+    png = tmp_path / "end.png"
+    assert cli.main([str(scene), "--at", "3", "--size", "64x48", "--out", str(png),
+                     "--quiet"]) == 0
+    with Image.open(png) as im:
+        np.testing.assert_array_equal(cells["3"], np.asarray(im.convert("RGB")))
+    for image in cells.values():  # the cloth on the floor, not the background alone
+        colours = np.unique(image.reshape(-1, 3), axis=0)
+        assert len(colours) > 50, len(colours)
+
 def test_one_sweep_grid(tmp_path):
     scene = _write_scene(tmp_path)
     out = tmp_path / "ks.html"
