@@ -447,7 +447,8 @@ def _simulate(scene_path, overrides, frames, on_frame, shot, sizes) -> VariantRu
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         scene = load_scene(scene_path, list(overrides))
-        sim = Simulation(scene, shot_seconds=wanted[-1] / scene.simulation.frames_per_sec)
+        sim = Simulation(scene, shot_seconds=wanted[-1] / scene.simulation.frames_per_sec
+                         if wanted else None)
     msgs = [str(w.message).splitlines()[0] for w in caught if str(w.message)]
     framed = set(shot) if scene.camera is None else set()
     framings = {tuple(size): Framing(*size) for size in sizes} if framed else {}
