@@ -21,7 +21,11 @@ nearest eye that frames them all is
     e_z = max((X+ + X-) / (2 a_x), (Y+ + Y-) / (2 a_y), max p_z + 2 near),
     e_x = (X+ - X-) / 2,   e_y = (Y+ - Y-) / 2,
 looking at (e_x, e_y, (min p_z + max p_z) / 2); far = max(100, 2 (e_z - min p_z)) so a
-long fall is not clipped. Six running maxima hold the whole shot: no frame is kept.
+long fall is not clipped. A flat shot, its points spanning less height than FLAT times
+their depth (a cloth lying on the floor the whole shot), would put the eye at its own
+height, edge on (an empty image): it is framed as if it spanned FLAT times its depth,
+from its lowest point up (Y+ from a point that high over its nearest point), so the eye
+looks at it from above. Eight running maxima hold the whole shot: no frame is kept.
 """
 from __future__ import annotations
 
@@ -38,18 +42,22 @@ from .scene import Box, MeshCollider, Plane, Scene, Sphere
 
 MARGIN = 0.04  # of the image's width and height, kept clear on each side
 NEAR_FRACTION = 0.1  # of the cloth's size: a collider surface this near the cloth is framed
+#: a shot whose framed points span less height than this share of their depth (a cloth
+#: lying on the floor) is framed as if it were that high, standing up from its top: the
+#: eye rises above it instead of seeing it edge on
+FLAT = 0.25
 
 
 class Framing:
     """What a framed camera of a width x height image must show, accumulated frame by
-    frame as six running maxima (order-independent: the same points give the same camera
+    frame as eight running maxima (order-independent: the same points give the same camera
     whatever their order)."""
 
     def __init__(self, width: int, height: int, vfov: float = DEFAULT_VFOV) -> None:
         self.width, self.height, self.vfov = int(width), int(height), float(vfov)
         self.a_y = (1.0 - 2.0 * MARGIN) * math.tan(math.radians(self.vfov) / 2.0)
         self.a_x = self.a_y * self.width / self.height
-        self._max = np.full(6, -np.inf)  # X+, X-, Y+, Y-, max z, -min z
+        self._max = np.full(8, -np.inf)  # X+, X-, Y+, Y-, max z, -min z, max y, -min y
 
     def add(self, points: np.ndarray) -> None:
         """Frame these points (N, 3) too."""
@@ -59,7 +67,8 @@ class Framing:
         x, y, z = p[:, 0], p[:, 1], p[:, 2]
         ax, ay = self.a_x * z, self.a_y * z
         self._max = np.maximum(self._max, [np.max(x + ax), np.max(ax - x), np.max(y + ay),
-                                           np.max(ay - y), np.max(z), np.max(-z)])
+                                           np.max(ay - y), np.max(z), np.max(-z),
+                                           np.max(y), np.max(-y)])
 
     def include(self, other: Framing) -> None:
         """Frame what `other` (the same image size and field of view) frames too."""
@@ -69,9 +78,13 @@ class Framing:
 
     def camera(self) -> Camera:
         """The nearest camera looking down -z (up +y) that frames every point added."""
-        x_plus, x_minus, y_plus, y_minus, z_max, z_min = self._max * [1, 1, 1, 1, 1, -1]
+        x_plus, x_minus, y_plus, y_minus, z_max, z_min, y_max, y_min = (
+            self._max * [1, 1, 1, 1, 1, -1, 1, -1])
         if not np.isfinite(z_max):
             raise ValueError("nothing to frame: no points were added")
+        lift = FLAT * (z_max - z_min) - (y_max - y_min)
+        if lift > 0.0:  # a flat shot, seen edge on from its own height: frame it from above
+            y_plus = max(y_plus, y_max + lift + self.a_y * z_max)
         e_z = max((x_plus + x_minus) / (2.0 * self.a_x), (y_plus + y_minus) / (2.0 * self.a_y),
                   z_max + 2.0 * DEFAULT_NEAR)
         e_x, e_y = (x_plus - x_minus) / 2.0, (y_plus - y_minus) / 2.0

@@ -10,7 +10,7 @@ from PIL import Image
 
 import shading
 from pipeline.cli import main, nearest_sim_frames, output_times
-from pipeline.framing import MARGIN, NEAR_FRACTION, Framing, frame_shot, framed_points
+from pipeline.framing import FLAT, MARGIN, NEAR_FRACTION, Framing, frame_shot, framed_points
 from pipeline.frames import default_camera, render_frame, render_params, scene_meshes
 from pipeline.model import build_model
 from pipeline.scene import load_scene
@@ -192,6 +192,35 @@ def test_framed_collider_points_lie_on_the_posed_surface():
     far = pts + [0.0, NEAR_FRACTION + 0.01, 0.0]  # farther than the cloth's NEAR_FRACTION
     assert len(framed_points(box, far[1:], 0.0)) == 2
 
+
+
+def _tight(cam, points: np.ndarray) -> bool:
+    """The projected points reach the margin on both sides of one image axis."""
+    p = cam.project(points)
+    lo, hi = p[:, :2].min(axis=0), p[:, :2].max(axis=0)
+    w, h = cam.width, cam.height
+    gaps = np.abs([lo[0] - MARGIN * w, w - MARGIN * w - hi[0], lo[1] - MARGIN * h,
+                   h - MARGIN * h - hi[1]])
+    return bool((gaps[:2] < 1e-6).all() or (gaps[2:] < 1e-6).all())
+
+
+def test_a_flat_shot_is_seen_from_above():
+    """A cloth lying flat the whole shot (1 m x 1 m at y = 0): framed from its own height it
+    was edge on, one row of pixels; it is framed as if FLAT times its depth high, so the eye
+    is above it and it spans rows. A shot that high or more is framed as before (tight)."""
+    u = np.linspace(-0.5, 0.5, 11)
+    x, z = (a.ravel() for a in np.meshgrid(u, u))
+    flat = np.c_[x, np.zeros(x.size), z]
+    f = Framing(*SIZE)
+    f.add(flat)
+    cam = f.camera()
+    assert cam.eye[1] > 0.0 and _inside(cam, flat).all()
+    rows = np.ptp(cam.project(flat)[:, 1])
+    assert rows > 0.08 * SIZE[1], rows  # about 48 rows of a 512-row image; 0 before
+    sloped = flat + np.c_[np.zeros(x.size), FLAT * (z + 0.5), np.zeros(x.size)]
+    g = Framing(*SIZE)
+    g.add(sloped)
+    assert _inside(g.camera(), sloped).all() and _tight(g.camera(), sloped)
 
 def test_far_plane_follows_a_long_fall():
     f = Framing(*SIZE)
