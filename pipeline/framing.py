@@ -43,7 +43,7 @@ from .scene import Box, MeshCollider, Plane, Scene, Sphere
 MARGIN = 0.04  # of the image's width and height, kept clear on each side
 NEAR_FRACTION = 0.1  # of the cloth's size: a collider surface this near the cloth is framed
 #: a shot whose framed points span less height than this share of their depth (a cloth
-#: lying on the floor) is framed as if it were that high, standing up from its top: the
+#: lying on the floor) is framed as if it were that high, from its lowest point up: the
 #: eye rises above it instead of seeing it edge on
 FLAT = 0.25
 
