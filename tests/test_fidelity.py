@@ -233,7 +233,6 @@ def test_the_pilot_is_skipped_under_contact_and_keeps_the_file_steps():
     assert "as the file says: under contact" in "\n".join(sim.plan.lines())
 
 
-
 def test_a_steady_wind_gets_the_pilot_and_gusts_keep_the_file_steps():
     # a steady wind neither varies in time nor makes the motion chaotic: the pilot chooses
     # the steps (a tight tolerance: more than the file's) and the cloth may sleep; gusts keep
@@ -253,6 +252,7 @@ def test_a_steady_wind_gets_the_pilot_and_gusts_keep_the_file_steps():
     assert sim.stepper.steps_used == [30] * 3
     lines = "\n".join(sim.plan.lines())
     assert "under contact, self-collision or gusts" in lines and "never: the gusts" in lines
+
 
 # --- skipping passes changes nothing -------------------------------------------------------
 
