@@ -216,7 +216,7 @@ class Run:
         n = x.shape[1]
         strains = []
         for d in range(6):
-            if DIRECTION_TYPE[d] == 2 or (s.fem is None and s.stiffness[d] == 0.0):
+            if DIRECTION_TYPE[d] == 2 or (s.classic and s.stiffness[d] == 0.0):
                 continue
             p = np.nonzero(s.exists[d])[0]
             q = p + s.offsets[d]

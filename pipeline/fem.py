@@ -139,6 +139,19 @@ def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
                            hinges=KernelPointer(_hinges, args))
 
 
+def no_fem() -> FemParams:
+    """The classic model's FemParams: no points, absent pointers, the types of a real one's,
+    so that a classic System has the type of a FEM one (system.StepKernels)."""
+    z2, z3 = np.zeros((2, 0)), np.zeros((2, 4, 0))
+    params = FemParams(nw=0, nh=0, width=0.0, height=0.0, k_stretch=0.0, k_shear=0.0,
+                       k_bend=0.0, density=0.0, x_rest=np.zeros((3, 0)), tri_area=z2,
+                       tri_inv=z3, edge_factor=np.zeros((3, 0)),
+                       offsets=np.zeros(6, dtype=np.int64), scratch=np.zeros((SCRATCH_ROWS, 0)))
+    args = element_args(params)
+    return params._replace(triangles=KernelPointer(_triangles, args, present=False),
+                           hinges=KernelPointer(_hinges, args, present=False))
+
+
 def element_args(params: FemParams) -> tuple:
     """Arguments of the types _bands_of_parity passes to _triangles and _hinges (positions,
     direction and out are (3, N) float64 arrays; the params without their pointers; mode,

@@ -1,8 +1,8 @@
 """Forces of the classic model: gravity on every point plus Hooke's law along every enabled
 spring (SPEC section 2, step 1), plus the scene's other forces (wind), shared by every
-integrator through `total_force`. With the FEM model (System.fem not None) the springs'
+integrator through `total_force`. With the FEM model (System.classic False) the springs'
 forces and Jacobians give way to pipeline.fem's (System.kernels.internal points to
-`fem_internal_forces`; the `jacobian_*` functions test `springs` and `fem`, see below).
+`fem_internal_forces`, `jacobian_kernels` to the FEM's, see below).
 
 A force beyond gravity and springs is one @njit function `add_...(x, v, t, params, f)` that
 adds to f, packed into the System by system.build_system (params None, or of the same type
@@ -120,14 +120,14 @@ class SpringKernels(NamedTuple):
 
 
 def spring_kernels(offsets, exists, rest, stiffness, spring_force, order, mass,
-                   gravity) -> SpringKernels:
+                   gravity, present=True) -> SpringKernels:
     """Pointers to the passes, typed as spring_forces calls them."""
     field, index = types.float64[:, ::1], types.int64  # positions and forces (3, N)
     return SpringKernels(
         KernelPointer(_direction_forces, (field, offsets, exists, rest, stiffness, spring_force,
-                                          index, index, index)),
+                                          index, index, index), present=present),
         KernelPointer(_gather, (spring_force, offsets, order, mass, gravity, field, index,
-                                index)))
+                                index), present=present))
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
@@ -175,7 +175,7 @@ def force_fields(s) -> tuple:
 @njit(cache=True, nogil=True, inline="always")
 def forces_of(x, v, t, fields, f):
     """total_force from the System's fields (force_fields): inlined in kernels; called from
-    Python it compiles once per model and System kind (system.StepKernels; its entry point
+    Python it compiles once per System kind (system.StepKernels; its entry point
     unboxes these fields; one taking the System compiled again for every System type,
     2-3 s each, and unboxed all of it)."""
     (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, passes, wind,
@@ -192,7 +192,7 @@ def forces_of(x, v, t, fields, f):
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                     spring_force, passes, f):
-    """f[:] = gravity + the springs' forces (the classic model: fem is None; `passes` the
+    """f[:] = gravity + the springs' forces (the classic model; `fem` unused; `passes` the
     SpringKernels). Called through System.kernels.internal (a KernelPointer), as
     fem_internal_forces with the FEM."""
     spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
@@ -202,9 +202,9 @@ def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravi
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                         spring_force, passes, f):
-    """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). One kernel
-    with internal_forces' `if fem is None` compiled the springs' forces too: numba prunes
-    such a branch only when the argument's type is None."""
+    """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). A kernel
+    of its own, chosen in Python: one kernel testing the model would compile both models'
+    forces."""
     _gravity(mass, gravity, f)
     add_fem_forces(x, fem, f)
 
@@ -240,7 +240,7 @@ def add_other_forces(x, v, t, wind, wind_force, f):
 
 def elastic_energy(x: np.ndarray, s) -> float:
     """Elastic potential energy (J) of the System `s`'s model at positions x (3, N)."""
-    if s.fem is not None:
+    if not s.classic:
         return fem_energy(x, s.fem)
     return spring_energy(x, s.offsets, s.exists, s.rest, s.stiffness)
 
@@ -361,38 +361,65 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
 # --- the elastic force Jacobian of either model, for implicit Euler ------------------------
 
 
-# They take the fields they read, not the System (`springs`: System.springs, None with the
-# FEM, as `fem` is None with the springs), so each compiles once per model, not once per
-# System type (wind, self-collision, ...). They test `springs is not None` and `fem is not
-# None`: numba prunes such a test only when the argument's type is None, so each model
-# compiles only its own code ("if fem is None: springs else: FEM" compiled both for the FEM).
+class JacobianKernels(NamedTuple):
+    """Pointers to one model's elastic force Jacobian, for implicit Euler: `prepare` (x, fem,
+    springs, unit, alpha) linearises at x, `product` (x, y, fem, springs, unit, alpha, buffer,
+    out) sets out = K y, `diagonal` (x, fem, springs, unit, alpha, out) sets out = the
+    diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner. K is negative
+    semi-definite: compressed springs, or the FEM's filtered Hessian. One signature for both
+    models (`springs`: System.springs, `fem`: System.fem; each model's kernels ignore the
+    other's), so the solve that calls them compiles once for both."""
+
+    prepare: KernelPointer
+    product: KernelPointer
+    diagonal: KernelPointer
 
 
-@njit(cache=True, nogil=True)
-def prepare_jacobian(x, fem, springs, unit, alpha):
-    """Linearise the elastic forces at x: the classic springs store their per-spring data in
-    (unit, alpha) (see spring_jacobian); the FEM needs nothing beyond x."""
-    if springs is not None:
-        offsets, _, exists, rest, stiffness = springs
-        spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
+def jacobian_kernels(system, x, unit, alpha, buffer) -> JacobianKernels:
+    """The System's model's JacobianKernels, typed for positions like x (3, N) and the
+    springs' scratch (unit, alpha, buffer: see spring_jacobian)."""
+    classic = system.classic
+    fields = (system.fem, system.springs, unit, alpha)
+    return JacobianKernels(
+        KernelPointer(spring_prepare if classic else fem_prepare, (x, *fields)),
+        KernelPointer(spring_product if classic else fem_product,
+                      (x, x, *fields, buffer, x)),
+        KernelPointer(spring_diagonal if classic else fem_diagonal, (x, *fields, x)))
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def jacobian_product(x, y, fem, springs, unit, alpha, buffer, out):
-    """out = K y, K the elastic force Jacobian at x (negative semi-definite: compressed
-    springs, or the FEM's filtered Hessian)."""
-    if springs is not None:
-        offsets, order, _, _, stiffness = springs
-        spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out)
-    if fem is not None:
-        fem_filtered_jacobian_product(x, fem, y, out)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def spring_prepare(x, fem, springs, unit, alpha):
+    """The springs' per-spring data at x (spring_jacobian)."""
+    offsets, _, exists, rest, stiffness = springs
+    spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
 
 
-@njit(cache=True, nogil=True)
-def jacobian_diagonal(x, fem, springs, unit, alpha, out):
-    """out = the diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner."""
-    if springs is not None:
-        offsets, _, _, _, stiffness = springs
-        spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out)
-    if fem is not None:
-        fem_jacobian_diagonal(x, fem, out)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def fem_prepare(x, fem, springs, unit, alpha):
+    """Nothing: the FEM's products need nothing beyond x."""
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def spring_product(x, y, fem, springs, unit, alpha, buffer, out):
+    """out = K y of the springs (spring_jacobian_product)."""
+    offsets, order, _, _, stiffness = springs
+    spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def fem_product(x, y, fem, springs, unit, alpha, buffer, out):
+    """out = K_f y of the FEM (fem_filtered_jacobian_product)."""
+    fem_filtered_jacobian_product(x, fem, y, out)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def spring_diagonal(x, fem, springs, unit, alpha, out):
+    """The springs' diagonal of -K (spring_jacobian_diagonal)."""
+    offsets, _, _, _, stiffness = springs
+    spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def fem_diagonal(x, fem, springs, unit, alpha, out):
+    """The FEM's diagonal of -K_f (fem_jacobian_diagonal)."""
+    fem_jacobian_diagonal(x, fem, out)

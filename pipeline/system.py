@@ -16,7 +16,7 @@ from shading.jit import KernelPointer, njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
-from .fem import FemParams, estimate_omega_max
+from .fem import FemParams, estimate_omega_max, no_fem
 from .forces import (SpringKernels, direction_offsets, fem_internal_forces, gather_order,
                      internal_forces, spring_force_buffer, spring_kernels)
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
@@ -38,12 +38,16 @@ class StepKernels(NamedTuple):
     the same type, so wind, self-collision or both share one stepping kernel per model and
     integrator. (Giving the lean scenes these params too made their stepping kernel compile
     about 1.1 s slower, 3.2-3.7 s against 2.0-2.6 s: numba's compile time grows with the
-    arrays the System holds.)"""
+    arrays the System holds.)
+
+    Both models have the same types here and in the System (the FEM's passes absent in a
+    classic System, the springs' in a FEM one), so one stepping kernel per integrator serves
+    both: a first FEM scene after the README's compiles 3-4 s less."""
 
     internal: KernelPointer  # forces.internal_forces (fem_internal_forces with the FEM)
-    springs: SpringKernels | None  # the springs' passes internal_forces calls; None: the FEM
+    springs: SpringKernels  # the springs' passes internal_forces calls; absent with the FEM
     collide: KernelPointer  # colliders.collide_all
-    stretch: KernelPointer | None  # constraints.limit_stretch; None: the FEM (no Provot)
+    stretch: KernelPointer  # constraints.limit_stretch; absent with the FEM (no Provot)
     self_collide: KernelPointer | None  # self_collision.self_collide; absent or None: off
     wind: KernelPointer | None  # wind.add_wind_force; absent or None: no wind
 
@@ -73,10 +77,12 @@ class System(NamedTuple):
     steps_per_frame: int
     colliders: ColliderTable
     wind: WindParams | None  # still air (`on` False) or None without wind (StepKernels)
-    fem: FemParams | None  # the finite-element model; None: the classic springs
+    # the finite-element model; a classic System's has no points (fem.no_fem) and its
+    # kernels absent, so that both models' Systems have one type (StepKernels)
+    fem: FemParams
     # (offsets, gather_order, exists, rest, stiffness) for kernels that take fields, not the
-    # System (the same types in every System: one compile per model); None with the FEM
-    springs: tuple | None
+    # System (the same types in every System: one compile for both models)
+    springs: tuple
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool  # the scene turns self-collision on
     scratch: tuple | None  # SelfCollisionScratch.as_tuple(), for no points or None when off
@@ -86,6 +92,11 @@ class System(NamedTuple):
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
+
+    @property
+    def classic(self) -> bool:
+        """The classic mass-spring model (else the FEM); kernels test `fem.nw == 0`."""
+        return self.fem.nw == 0
 
 
 # numba types a kernel's arguments in C when it can fingerprint them (arrays, numbers and
@@ -118,6 +129,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
     either = scene.wind is not None or scene.self_collision  # see StepKernels
     centre = model.x0.mean(axis=1)
+    offsets, order = direction_offsets(model.nw), gather_order(model.nw)
     extent = max([float(np.linalg.norm(np.subtract(c.pivot, centre))) for c in scene.colliders]
                  + [0.0]) + math.hypot(model.width, model.height)
     system = System(
@@ -130,8 +142,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         pinned=model.pinned,
         exists=model.exists,
         exist_bits=existence_bits(model.exists),
-        offsets=direction_offsets(model.nw),
-        gather_order=gather_order(model.nw),
+        offsets=offsets,
+        gather_order=order,
         rest=model.rest,
         stiffness=model.stiffness,
         limit=limit,
@@ -145,8 +157,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         steps_per_frame=int(sim.steps_per_frame),
         colliders=pack_colliders(scene.colliders),
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh) if either else None,
-        fem=model.fem,
-        springs=None,
+        fem=model.fem if model.fem is not None else no_fem(),
+        springs=(offsets, order, model.exists, model.rest, model.stiffness),
         needs_velocity=scene.wind is not None,
         self_collision=bool(scene.self_collision),
         scratch=(SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple()
@@ -158,26 +170,25 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         reach=new_reach(model.n),
         colliders_last=False,
     )
-    if model.fem is None:
-        system = system._replace(springs=(system.offsets, system.gather_order, system.exists,
-                                          system.rest, system.stiffness))
     return system._replace(kernels=step_kernels(system))
 
 
 def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
-    springs = None if s.fem is not None else spring_kernels(
+    classic = s.classic
+    springs = spring_kernels(
         s.offsets, s.exists, s.rest, s.stiffness, s.spring_force, s.gather_order, s.mass,
-        s.gravity)
+        s.gravity, classic)
     return StepKernels(
-        internal=KernelPointer(internal_forces if s.fem is None else fem_internal_forces, (
+        internal=KernelPointer(internal_forces if classic else fem_internal_forces, (
             field, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
             s.gravity, s.spring_force, springs, field)),
         springs=springs,
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),
-        stretch=None if s.fem is not None else KernelPointer(limit_stretch, (
-            field, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)),
+        stretch=KernelPointer(limit_stretch, (
+            field, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
+            present=classic),
         self_collide=None if s.scratch is None else KernelPointer(self_collide, (
             field, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
             s.scratch), present=s.self_collision),
@@ -332,8 +343,8 @@ def position_passes(x, last, system, t_start):
                          s.reach.self_on, s.reach.counts)
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    _classic_stretch_limit(x, k.stretch, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo,
-                           s.pinned, s.mask)
+    if s.fem.nw == 0:  # the classic model (the FEM's stretch pointer is absent)
+        k.stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
@@ -346,12 +357,6 @@ def _self_collision_pass(x, pinned, width, height, nw, nh, thickness, steps_per_
     if self_collide is not None and on and self_on[0]:
         counts[1] += 1
         self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
-
-
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _classic_stretch_limit(x, stretch, offsets, exist_bits, limit, limit_sq_lo, pinned, mask):
-    if stretch is not None:  # numba prunes the call for the FEM model (None)
-        stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, mask)
 
 
 @njit(cache=True, nogil=True)

@@ -51,6 +51,9 @@ from .progress import bar, counter
 # through pointers (forces.SpringKernels): 1.4-1.7 s and 0.7-0.8 s for each pass, against
 # 5.4-5.7 s before, three rounds alternately in one process (2026-11-26), scaled by 0.73,
 # the old estimate over the old time.
+# Implicit Euler's Jacobian kernels (forces.JacobianKernels) and XPBD's sweeps since they are
+# pointers chosen per model: one traced cold run each (2026-11-26 at 23:55), scaled by 0.85,
+# collide_all's estimate over its time in that run.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -68,7 +71,11 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.fem:_hinges": 4.0,
                    "pipeline.fem:fem_filtered_jacobian_product": 1.5,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
-                   "pipeline.forces:jacobian_product": 4.0,
+                   "pipeline.forces:spring_prepare": 1.9, "pipeline.forces:spring_product": 3.0,
+                   "pipeline.forces:spring_diagonal": 0.25, "pipeline.forces:fem_prepare": 0.4,
+                   "pipeline.forces:fem_product": 1.0, "pipeline.forces:fem_diagonal": 0.5,
+                   "pipeline.integrators.xpbd:solve_springs": 0.85,
+                   "pipeline.integrators.xpbd:solve_fem": 2.7,
                    "pipeline.integrators.verlet:_update_all": 0.95,
                    "pipeline.integrators.implicit_euler:_update": 0.4,
                    "pipeline.integrators.euler:euler_update": 0.75,
@@ -142,8 +149,7 @@ def kernel_pointers(system) -> list:
                 table.mesh]
     if system.wind is not None:
         pointers.append(system.wind.band)
-    if system.fem is not None:
-        pointers += [system.fem.triangles, system.fem.hinges]
+    pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System
     return [p for p in pointers if p is not None and p.present]
 
 
@@ -160,7 +166,7 @@ def sim_jobs(system) -> list[Job]:
                                                s.slack_speed),
               "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
     jobs = [Job(n, a, True) for n, a in linked.items()]
-    if s.fem is not None:  # the stability limit's (system.stability_limit)
+    if not s.classic:  # the stability limit's (system.stability_limit)
         jobs.append(Job("pipeline.fem:fem_filtered_jacobian_product", (s.fem.x_rest, s.fem, x, f)))
     return jobs + [Job.of(p.dispatcher, p.argtypes) for p in kernel_pointers(s)]
 
@@ -174,7 +180,9 @@ def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
 
     kernel = stepping_kernel(integrator)
     state = integrator_module(integrator).State(system)
-    pointers = [p for p in vars(state).values() if isinstance(p, KernelPointer)]
+    pointers = [p for value in vars(state).values()  # a pointer, or a NamedTuple of them
+                for p in (value if isinstance(value, tuple) else (value,))
+                if isinstance(p, KernelPointer)]
     return (Job.of(kernel, state.arguments(system, 0, 0)),
             [Job.of(p.dispatcher, p.argtypes) for p in pointers])
 

@@ -35,15 +35,15 @@ def _theory(data: dict) -> float:
 def test_model_selection_and_integrators():
     fem = _pinned2("fem")
     assert fem["simulation"]["model"] == "fem"
-    assert Run(fem, "verlet").system.fem is not None
-    assert Run(_pinned2("classic"), "verlet").system.fem is None
-    assert Run(fem, "xpbd").system.fem is not None  # XPBD on the FEM's own constraints
+    assert Run(fem, "verlet").system.classic is False
+    assert Run(_pinned2("classic"), "verlet").system.classic is True
+    assert Run(fem, "xpbd").system.classic is False  # XPBD on the FEM's own constraints
     with pytest.raises(ValueError, match="unknown model"):
         with_model(fem, "cosserat")
     # a scene that asks for xpbd still runs under the FEM (the bench sets each integrator)
     data = _pinned2("classic")
     data["simulation"]["integrator"] = "xpbd"
-    assert Run(with_model(data, "fem"), "verlet").system.fem is not None
+    assert Run(with_model(data, "fem"), "verlet").system.classic is False
 
 
 def test_energy_is_the_models_elastic_energy():

@@ -75,21 +75,27 @@ MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces
 TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
-INTEGRATORS = [[], ["pipeline.integrators.implicit_euler:solve_step",
-                    "pipeline.forces:jacobian_product",
-                    "pipeline.integrators.implicit_euler:_update"],
-               ["pipeline.integrators.verlet:_update_all"],
-               ["pipeline.integrators.euler:euler_update"],
-               ["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"]]
-# (the kernels the States point to)
+IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
+            "pipeline.integrators.implicit_euler:_update"]
+# (the kernels the States point to, with the classic model and with the FEM)
+INTEGRATORS = [([], []),
+               (IMPLICIT + ["pipeline.forces:spring_prepare", "pipeline.forces:spring_product",
+                            "pipeline.forces:spring_diagonal"],
+                IMPLICIT + ["pipeline.forces:fem_prepare", "pipeline.forces:fem_product",
+                            "pipeline.forces:fem_diagonal"]),
+               (["pipeline.integrators.verlet:_update_all"],) * 2,
+               (["pipeline.integrators.euler:euler_update"],) * 2,
+               (["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"],) * 2,
+               (["pipeline.integrators.xpbd:solve_springs"],
+                ["pipeline.integrators.xpbd:solve_fem"])]
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"}
 
 
 def _scenes() -> list[list[str]]:
-    return [COMMON + m + t + w + c + i for m, t, w, c, i in
-            itertools.product(MODELS, TABLES, WINDS, SELF, INTEGRATORS)]
+    return [COMMON + m + t + w + c + i[k] for (k, m), t, w, c, i in
+            itertools.product(enumerate(MODELS), TABLES, WINDS, SELF, INTEGRATORS)]
 
 
 def _jobs(names) -> list[warmup.Job]:
@@ -123,13 +129,14 @@ def test_every_job_of_a_scene_has_an_estimate():
     assert seen == set(warmup.COMPILE_SECONDS)
 
 
-@pytest.mark.parametrize("model", ["classic", "fem"])
-def test_one_stepping_kernel_serves_wind_self_collision_and_both(model):
-    """Every integrator's stepping kernel is typed (compiled) the same for a cloth with
-    wind, self-collision or both (their passes go through pointers, absent when off): a
-    scene with one after a scene with the other compiles that pass only, not the stepping
-    kernel again. A cloth with neither keeps both None (numba prunes them: the README
-    scene's lean kernel). The passes are compiled (jobs) only where the scene has them."""
+def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():
+    """Every integrator's stepping kernel is typed (compiled) the same for the classic
+    model and the FEM (each model's kernels go through pointers, the other's absent) and
+    for a cloth with wind, self-collision or both (their passes go through pointers, absent
+    when off): a scene with one after a scene with the other compiles that model's or
+    pass's kernels only, not the stepping kernel again. A cloth with neither wind nor
+    self-collision keeps both None (numba prunes them: the README scene's lean kernel), of
+    either model. The passes are compiled (jobs) only where the scene has them."""
     from pipeline.scene import INTEGRATORS, load_scene
     from pipeline.simulation import cloth_model
     from pipeline.system import build_system
@@ -137,25 +144,30 @@ def test_one_stepping_kernel_serves_wind_self_collision_and_both(model):
 
     wind = 'wind={"velocity": [3.0, 0.0, 1.0], "gust": 1.0}'
     self_on = "simulation.self_collision=true"
-    base = ["simulation.self_collision=false", f'simulation.model="{model}"']
     systems = {}
-    for extra in ([], [wind], [self_on], [wind, self_on]):
-        scene = load_scene(scene_path("pinned2"), overrides=base + extra)
-        systems[tuple(extra)] = build_system(scene, cloth_model(scene))
-    for extra, system in systems.items():
+    for model in ("classic", "fem"):
+        base = ["simulation.self_collision=false", f'simulation.model="{model}"']
+        for extra in ([], [wind], [self_on], [wind, self_on]):
+            scene = load_scene(scene_path("pinned2"), overrides=base + extra)
+            systems[model, tuple(extra)] = build_system(scene, cloth_model(scene))
+    for (model, extra), system in systems.items():
+        assert system.classic == (model == "classic")
         names = {job.name for job in warmup.sim_jobs(system)}
         assert ("pipeline.wind:add_wind_force" in names) == (wind in extra)
         assert ("pipeline.wind:_band" in names) == (wind in extra)
         assert ("pipeline.self_collision:self_collide" in names) == (self_on in extra)
-    assert systems[()].wind is None and systems[()].scratch is None
+        assert ("pipeline.fem:_triangles" in names) == (model == "fem")
+        assert ("pipeline.constraints:limit_stretch" in names) == (model == "classic")
+        if not extra:
+            assert system.wind is None and system.scratch is None
     for integrator in INTEGRATORS:
-        kinds = set()
-        for extra, system in systems.items():
-            if not extra:
-                continue
-            job = warmup.integrator_jobs(integrator, system)[0]
-            kinds.add(argument_types(job.dispatcher(), job.args))
-        assert len(kinds) == 1, integrator
+        for lean in (True, False):
+            kinds = set()
+            for (model, extra), system in systems.items():
+                if (not extra) == lean:
+                    job = warmup.integrator_jobs(integrator, system)[0]
+                    kinds.add(argument_types(job.dispatcher(), job.args))
+            assert len(kinds) == 1, (integrator, lean)
 
 
 def test_prepare_comes_before_the_stability_limit(monkeypatch):

@@ -2,7 +2,7 @@
 simulation", section 4), matrix-free, with a filtered preconditioned conjugate gradient.
 
 With f(x, v) = m g + elastic forces(x) + other forces(x, v, t) - gamma m v (gamma =
-system.drag_rate), K = d(elastic forces)/dx at the start of the step (forces.jacobian_product:
+system.drag_rate), K = d(elastic forces)/dx at the start of the step (forces.jacobian_kernels:
 the spring Jacobians of forces.spring_jacobian, or the FEM's filtered Hessian; the other
 forces, wind, enter explicitly) and df/dv = -gamma M:
 
@@ -22,8 +22,7 @@ import numpy as np
 from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 
-from ..forces import (CHUNKS, _chunk, jacobian_diagonal, jacobian_product, prepare_jacobian,
-                      spring_force_buffer, total_force)
+from ..forces import CHUNKS, _chunk, jacobian_kernels, spring_force_buffer, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -43,23 +42,22 @@ class State(VelocityState):
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed
-        # the solve, the Jacobian product it calls and the update, through pointers:
-        # compiled once per model rather than linked into (and optimised again in) the
-        # stepping kernel of every System type, and apart (a first run compiles them in two
-        # processes)
+        # the solve, the model's Jacobian it calls and the update, through pointers:
+        # compiled once rather than linked into (and optimised again in) the stepping
+        # kernel of every System type, and apart (a first run compiles them in two
+        # processes); the solve and the stepping kernel serve both models
         fem, springs = system.fem, system.springs
-        self.product = KernelPointer(jacobian_product, (
-            self.x, self.x, fem, springs, self.unit, self.alpha, self.buffer, self.x))
+        self.jacobian = jacobian_kernels(system, self.x, self.unit, self.alpha, self.buffer)
         self.solve = KernelPointer(solve_step, (
             self.x, self.v, self.force, 0.0, system.pinned, system.mass, fem, springs,
-            self.unit, self.alpha, self.buffer, self.work, 0.0, self.product), types.int64)
+            self.unit, self.alpha, self.buffer, self.work, 0.0, self.jacobian), types.int64)
         self.update = KernelPointer(_update, (self.x, self.v, self.last, self.work[1],
                                               system.pinned, 0.0, self.predicted))
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
         return (system, self.x, self.v, self.last, self.predicted, self.force, self.unit,
-                self.alpha, self.buffer, self.work, self.iterations, self.solve, self.product,
+                self.alpha, self.buffer, self.work, self.iterations, self.solve, self.jacobian,
                 self.update, steps, first_step)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
@@ -79,7 +77,7 @@ def _dot(a, b):
 def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
            product):
     """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x, by `product`:
-    forces.jacobian_product); mass_factor is 1 + h gamma."""
+    forces.JacobianKernels.product); mass_factor is 1 + h gamma."""
     product(x, y, fem, springs, unit, alpha, buffer, out)
     for ax in range(3):
         for p in range(y.shape[1]):
@@ -89,18 +87,19 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma,
-               product):
+               jacobian):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
     at its start; returns CG iterations. It takes the System's fields (`springs`:
-    System.springs), so it compiles once per model, not per System type; the
-    stepping kernel calls it through State.solve, and it calls forces.jacobian_product
-    through `product` (KernelPointers)."""
+    System.springs), so it compiles once, not per System type; the stepping kernel calls
+    it through State.solve, and it calls the model's Jacobian through `jacobian`
+    (forces.JacobianKernels)."""
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
-    prepare_jacobian(x, fem, springs, unit, alpha)
+    prepare, product, diagonal = jacobian
+    prepare(x, fem, springs, unit, alpha)
     product(x, v, fem, springs, unit, alpha, buffer, q)
-    jacobian_diagonal(x, fem, springs, unit, alpha, diag)
+    diagonal(x, fem, springs, unit, alpha, diag)
     mass_factor = 1.0 + h * gamma
     for ax in range(3):
         for p in range(n):
@@ -154,7 +153,7 @@ def _update(x, v, last, dv, pinned, dt, predicted):
 
 @njit(cache=True, nogil=True)
 def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iterations, solve,
-            product, update, steps, first_step):
+            jacobian, update, steps, first_step):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
@@ -162,7 +161,7 @@ def advance(s, x, v, last, predicted, force, unit, alpha, buffer, work, iteratio
         t = (first_step + step) * s.dt
         total_force(x, v, t, s, force)
         iterations[0] += solve(x, v, force, s.dt, s.pinned, s.mass, s.fem, s.springs, unit,
-                               alpha, buffer, work, gamma, product)
+                               alpha, buffer, work, gamma, jacobian)
         update(x, v, last, work[1], s.pinned, s.dt, predicted)
         position_passes(x, last, s, t)
         corrected_velocities(x, predicted, v, s.pinned, s.dt)

@@ -14,9 +14,9 @@ kind, each C_u, C_v, C_s, then the hinges likewise), each applying
 d_lambda = (-C - alpha~ lambda) / (sum_i w_i |grad_i C|^2 + alpha~), alpha~ = alpha / dt^2,
 x_i += w_i grad_i C d_lambda, w = 1/m_p (0 when pinned); then the shared position passes
 (self-collision, colliders, Provot on the classic model) and v = (x - x_start) / dt for
-every free point. The model is chosen at compile time (numba prunes a test of an argument
-whose type is None: `fem` with the springs, `springs` with the FEM): each kernel contains
-its model's code only.
+every free point. The State points `constraints` at the model's sweeps (`solve_springs` or
+`solve_fem`, one signature): the stepping kernel, the same for both models, contains
+neither.
 State: positions x, velocities v, start-of-step positions last (3, N), multipliers (6, N)
 for the classic springs or (9, N) for the FEM (rows 3 t + (0, 1, 2): C_u, C_v, C_s of the
 triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
@@ -24,7 +24,8 @@ triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit
+from numba.core import types
+from shading.jit import KernelPointer, njit
 
 from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)
@@ -41,20 +42,26 @@ class State(VelocityState):
     def __init__(self, system: System) -> None:
         super().__init__(system)
         fem = system.fem
-        self.multiplier = (np.zeros(system.rest.shape) if fem is None
+        self.multiplier = (np.zeros(system.rest.shape) if system.classic
                            else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS, fem.nw * fem.nh)))
+        self.constraints = KernelPointer(
+            solve_springs if system.classic else solve_fem,
+            (self.x, self.multiplier, system.pinned, system.mass, system.springs, fem, 0.0,
+             types.int64))
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
-        return (system, self.x, self.v, self.last, self.force, self.multiplier, steps, first_step,
-                ITERATIONS)
+        return (system, self.x, self.v, self.last, self.force, self.multiplier,
+                self.constraints, steps, first_step, ITERATIONS)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True)
-def _solve(x, lam, pinned, mass, springs, dt2, iterations):
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def solve_springs(x, lam, pinned, mass, springs, fem, dt2, iterations):
+    """Gauss-Seidel sweeps over the springs' distance constraints, in SPEC order (`fem`
+    unused: the signature of solve_fem)."""
     offsets, _, exists, rest, stiffness = springs
     n = x.shape[1]
     for _ in range(iterations):
@@ -85,18 +92,6 @@ def _solve(x, lam, pinned, mass, springs, dt2, iterations):
                 x[0, q] += wq * dl * ux
                 x[1, q] += wq * dl * uy
                 x[2, q] += wq * dl * uz
-
-
-@njit(cache=True, nogil=True)
-def _solve_constraints(x, lam, pinned, mass, springs, fem, dt2, iterations):
-    """The constraints' projections: the springs' (`springs`: System.springs, None with the
-    FEM) or the FEM's. They take the System's fields, not the System: one compile per model,
-    not per System type. numba prunes each test, the argument's type being None, so each
-    model compiles only its own projections."""
-    if springs is not None:
-        _solve(x, lam, pinned, mass, springs, dt2, iterations)
-    if fem is not None:
-        _solve_fem(x, lam, pinned, mass, fem, dt2, iterations)
 
 
 @njit(cache=True, nogil=True)
@@ -201,9 +196,10 @@ def _bend(x, lam, pinned, mass, fem, k, p, dt2):
     _move(x, pd, wd * dl, gd)
 
 
-@njit(cache=True, nogil=True)
-def _solve_fem(x, lam, pinned, mass, fem, dt2, iterations):
-    """Gauss-Seidel sweeps over the FEM constraints: triangles, then hinges, anchor order."""
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def solve_fem(x, lam, pinned, mass, springs, fem, dt2, iterations):
+    """Gauss-Seidel sweeps over the FEM constraints: triangles, then hinges, anchor order
+    (`springs` unused: the signature of solve_springs)."""
     n = x.shape[1]
     for _ in range(iterations):
         for p in range(n):
@@ -216,7 +212,7 @@ def _solve_fem(x, lam, pinned, mass, fem, dt2, iterations):
 
 
 @njit(cache=True, nogil=True)
-def advance(s, x, v, last, force, lam, steps, first_step, iterations):
+def advance(s, x, v, last, force, lam, constraints, steps, first_step, iterations):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     h = s.dt
     keep = 1.0 - s.damping
@@ -232,7 +228,7 @@ def advance(s, x, v, last, force, lam, steps, first_step, iterations):
                     v[a, p] = keep * v[a, p] + h * (force[a, p] / s.mass[p])
                     x[a, p] += h * v[a, p]
         lam[:] = 0.0
-        _solve_constraints(x, lam, s.pinned, s.mass, s.springs, s.fem, h * h, iterations)
+        constraints(x, lam, s.pinned, s.mass, s.springs, s.fem, h * h, iterations)
         position_passes(x, last, s, t)
         for p in range(n):
             if not s.pinned[p]:
