@@ -167,9 +167,9 @@ def force_fields(s) -> tuple:
     """The System's fields the forces read, as one argument of `forces_of` (plain Python
     when Python calls it, inlined in kernels). The pointer comes last: numba tries to unify
     a plain tuple starting with a function as a tuple of functions, and warns."""
-    return (s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
-            s.gravity, s.spring_force, s.kernels.springs, s.wind, s.kernels.wind,
-            s.kernels.internal)
+    offsets, order, exists, rest, stiffness = s.springs
+    return (s.fem, offsets, order, exists, rest, stiffness, s.mass, s.gravity, s.spring_force,
+            s.kernels.springs, s.wind, s.kernels.wind, s.kernels.internal)
 
 
 @njit(cache=True, nogil=True, inline="always")

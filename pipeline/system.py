@@ -60,12 +60,7 @@ class System(NamedTuple):
     thickness: float
     x0: np.ndarray  # (3, N)
     pinned: np.ndarray  # (N,) uint8
-    exists: np.ndarray  # (6, N) bool
     exist_bits: np.ndarray  # (N + pad,) uint8, bit d = spring (d, p) exists
-    offsets: np.ndarray  # (6,) neighbour index offset per direction
-    gather_order: np.ndarray  # (6,) see forces.gather_order
-    rest: np.ndarray  # (6, N)
-    stiffness: np.ndarray  # (6,)
     limit: np.ndarray  # (6, N) 1.1 * rest
     limit_sq_lo: np.ndarray  # (6, N)
     mass: np.ndarray  # (N,) point masses
@@ -80,8 +75,8 @@ class System(NamedTuple):
     # the finite-element model; a classic System's has no points (fem.no_fem) and its
     # kernels absent, so that both models' Systems have one type (StepKernels)
     fem: FemParams
-    # (offsets, gather_order, exists, rest, stiffness) for kernels that take fields, not the
-    # System (the same types in every System: one compile for both models)
+    # the springs' (offsets, gather_order, exists, rest, stiffness), also as the properties
+    # below; one field, not five (numba's compile time grows with the System's arrays)
     springs: tuple
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool  # the scene turns self-collision on
@@ -92,6 +87,31 @@ class System(NamedTuple):
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
+
+    @property
+    def offsets(self) -> np.ndarray:
+        """(6,) neighbour index offset per direction."""
+        return self.springs[0]
+
+    @property
+    def gather_order(self) -> np.ndarray:
+        """(6,) see forces.gather_order."""
+        return self.springs[1]
+
+    @property
+    def exists(self) -> np.ndarray:
+        """(6, N) bool: spring (d, p) exists."""
+        return self.springs[2]
+
+    @property
+    def rest(self) -> np.ndarray:
+        """(6, N) rest lengths."""
+        return self.springs[3]
+
+    @property
+    def stiffness(self) -> np.ndarray:
+        """(6,) stiffness per direction."""
+        return self.springs[4]
 
     @property
     def classic(self) -> bool:
@@ -140,12 +160,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         thickness=model.thickness,
         x0=model.x0,
         pinned=model.pinned,
-        exists=model.exists,
         exist_bits=existence_bits(model.exists),
-        offsets=offsets,
-        gather_order=order,
-        rest=model.rest,
-        stiffness=model.stiffness,
         limit=limit,
         limit_sq_lo=limit_sq_lo,
         mass=model.point_mass,
@@ -344,7 +359,7 @@ def position_passes(x, last, system, t_start):
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     if s.fem.nw == 0:  # the classic model (the FEM's stretch pointer is absent)
-        k.stretch(x, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+        k.stretch(x, s.springs[0], s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
