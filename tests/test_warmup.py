@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 from conftest import SCENES, cloth_dict, scene_dict, scene_path
@@ -185,11 +186,33 @@ def test_prepare_comes_before_the_stability_limit(monkeypatch):
     assert calls[0][0] is sim.model and calls[0][1] is sim.system
 
 
+def _best_splits(linked, free, render, step, rng) -> float:
+    """The best estimate of every way of sharing the `free` jobs (`linked` stay here):
+    all 2^k ways' sums at once (numpy), each way's estimate checked against
+    warmup.estimate_seconds where k <= 4, else on the best way and four random ones."""
+    seconds = np.array([warmup.COMPILE_SECONDS[j.name] for j in free])
+    sides = np.arange(2 ** len(free))
+    here = (sides[:, None] >> np.arange(len(free))) & 1  # way w puts job i here if set
+    mine = sum(warmup.COMPILE_SECONDS[j.name] for j in linked) + here @ seconds
+    theirs = seconds.sum() - here @ seconds
+    rendering = warmup.RENDER_SECONDS if render else 0.0
+    ways = warmup.CONTENTION * np.maximum(mine + step,
+                                          warmup.HELPER_START + theirs + rendering)
+    checked = (sides if len(free) <= 4 else
+               [int(np.argmin(ways))] + [rng.randrange(len(sides)) for _ in range(4)])
+    for side in checked:
+        estimate = warmup.estimate_seconds(
+            linked + [j for k, j in enumerate(free) if side >> k & 1],
+            [j for k, j in enumerate(free) if not side >> k & 1], render, step, True)
+        assert estimate == pytest.approx(ways[side], abs=1e-9)
+    return float(ways.min())
+
+
 def test_split_balances_the_two_processes():
     """On every scene's kernels, all cold and 60 random parts of them (the rest cached):
     the split is within 4/3 of the best one (every way of sharing them, the linked callees
     here) and beats one process when it starts the helper."""
-    rng = random.Random(15)
+    rng, checks = random.Random(15), random.Random(16)
     for names in _scenes():
         parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(60)]
         for part in filter(None, parts):
@@ -203,10 +226,7 @@ def test_split_balances_the_two_processes():
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)
                     alone = warmup.estimate_seconds(jobs, [], render, step, False)
-                    best = min(warmup.estimate_seconds(
-                        linked + [j for k, j in enumerate(free) if side >> k & 1],
-                        [j for k, j in enumerate(free) if not side >> k & 1], render, step,
-                        True) for side in range(2 ** len(free)))
+                    best = _best_splits(linked, free, render, step, checks)
                     chosen = warmup.estimate_seconds(here, helper, render, step, two)
                     # the helper only when it is faster than one process
                     assert chosen <= alone and (two or not helper)
