@@ -215,13 +215,14 @@ class Run:
         x = state.x
         n = x.shape[1]
         strains = []
+        offsets, _, exists, rest, stiffness = s.springs
         for d in range(6):
-            if DIRECTION_TYPE[d] == 2 or (s.classic and s.stiffness[d] == 0.0):
+            if DIRECTION_TYPE[d] == 2 or (s.classic and stiffness[d] == 0.0):
                 continue
-            p = np.nonzero(s.exists[d])[0]
-            q = p + s.offsets[d]
+            p = np.nonzero(exists[d])[0]
+            q = p + offsets[d]
             length = np.linalg.norm(x[:, q] - x[:, p], axis=0)
-            strains.append(length / s.rest[d, p] - 1.0)
+            strains.append(length / rest[d, p] - 1.0)
         if not strains or n == 0:
             return 0.0
         values = np.concatenate(strains)

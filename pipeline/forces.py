@@ -242,7 +242,8 @@ def elastic_energy(x: np.ndarray, s) -> float:
     """Elastic potential energy (J) of the System `s`'s model at positions x (3, N)."""
     if not s.classic:
         return fem_energy(x, s.fem)
-    return spring_energy(x, s.offsets, s.exists, s.rest, s.stiffness)
+    offsets, _, exists, rest, stiffness = s.springs
+    return spring_energy(x, offsets, exists, rest, stiffness)
 
 
 @njit(cache=True, nogil=True)

@@ -75,8 +75,8 @@ class System(NamedTuple):
     # the finite-element model; a classic System's has no points (fem.no_fem) and its
     # kernels absent, so that both models' Systems have one type (StepKernels)
     fem: FemParams
-    # the springs' (offsets, gather_order, exists, rest, stiffness), also as the properties
-    # below; one field, not five (numba's compile time grows with the System's arrays)
+    # the springs' (offsets, gather_order, exists, rest, stiffness): one field, not five
+    # (numba's compile time grows with the System's arrays)
     springs: tuple
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool  # the scene turns self-collision on
@@ -87,31 +87,6 @@ class System(NamedTuple):
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
-
-    @property
-    def offsets(self) -> np.ndarray:
-        """(6,) neighbour index offset per direction."""
-        return self.springs[0]
-
-    @property
-    def gather_order(self) -> np.ndarray:
-        """(6,) see forces.gather_order."""
-        return self.springs[1]
-
-    @property
-    def exists(self) -> np.ndarray:
-        """(6, N) bool: spring (d, p) exists."""
-        return self.springs[2]
-
-    @property
-    def rest(self) -> np.ndarray:
-        """(6, N) rest lengths."""
-        return self.springs[3]
-
-    @property
-    def stiffness(self) -> np.ndarray:
-        """(6,) stiffness per direction."""
-        return self.springs[4]
 
     @property
     def classic(self) -> bool:
@@ -192,17 +167,18 @@ def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
     classic = s.classic
+    offsets, order, exists, rest, stiffness = s.springs
     springs = spring_kernels(
-        s.offsets, s.exists, s.rest, s.stiffness, s.spring_force, s.gather_order, s.mass,
+        offsets, exists, rest, stiffness, s.spring_force, order, s.mass,
         s.gravity, classic)
     return StepKernels(
         internal=KernelPointer(internal_forces if classic else fem_internal_forces, (
-            field, s.fem, s.offsets, s.gather_order, s.exists, s.rest, s.stiffness, s.mass,
+            field, s.fem, offsets, order, exists, rest, stiffness, s.mass,
             s.gravity, s.spring_force, springs, field)),
         springs=springs,
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),
         stretch=KernelPointer(limit_stretch, (
-            field, s.offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
+            field, offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
             present=classic),
         self_collide=None if s.scratch is None else KernelPointer(self_collide, (
             field, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
@@ -226,8 +202,9 @@ GUARD_FACTOR = 2.0
 
 
 # The guard's and the passes' kernels take the System's fields, not the System: a kernel
-# that takes the System compiles again for each of its types (wind, FEM), and its Python
-# entry point alone (unboxing every array of the System) costs about 0.5 s to compile.
+# that takes the System compiles again for each of its types (wind, self-collision), and
+# its Python entry point alone (unboxing every array of the System) costs about 0.5 s to
+# compile.
 # Those that must see the System (forces.total_force too) are inlined into the
 # integrator's stepping kernel.
 
