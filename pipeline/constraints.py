@@ -9,7 +9,8 @@ endpoints as in the pre-pass, so skipping it is exactly what the full walk would
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import njit, prange
+from numba.core import types
+from shading.jit import KernelPointer, njit, prange
 
 from .forces import CHUNKS, _chunk
 
@@ -32,9 +33,18 @@ def existence_bits(exists: np.ndarray) -> np.ndarray:
     return bits
 
 
-def candidate_mask(n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Scratch for `limit_stretch`: (mask (N + pad,) uint8, long (6, N) bool)."""
-    return np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
+def candidate_mask(n: int, present: bool = True) -> tuple:
+    """Scratch for `limit_stretch`: (mask (N + pad,) uint8, long (6, N) bool, and pointers
+    to the pre-pass's two passes, `_flag_long` and `_pack_mask`, absent unless `present`).
+    The pre-pass's parallel loop calls them through pointers: linked in, they were compiled
+    again in each copy numba makes of the loop's body (as forces.SpringKernels)."""
+    mask, long = np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
+    index = types.int64
+    flag = KernelPointer(_flag_long, (types.float64[:, ::1], index, types.float64[::1],
+                                      types.bool_[::1], index, index), present=present)
+    pack = KernelPointer(_pack_mask, (long, types.uint8[::1], mask, index, index),
+                         present=present)
+    return mask, long, flag, pack
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -65,13 +75,13 @@ def _pack_mask(long, exist_bits, mask, lo, hi):
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
 def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch):
-    mask, long = scratch
+    mask, long, flag, pack = scratch
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
-            _flag_long(x, offsets[d], limit_sq_lo[d], long[d], lo, hi)
-        _pack_mask(long, exist_bits, mask, lo, hi)
+            flag(x, offsets[d], limit_sq_lo[d], long[d], lo, hi)
+        pack(long, exist_bits, mask, lo, hi)
 
 
 @njit(cache=True, nogil=True, inline="always")

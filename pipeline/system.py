@@ -154,7 +154,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         scratch=(SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple()
                  if either else None),
         spring_force=spring_force_buffer(model.n, model.nw),
-        mask=candidate_mask(model.n),
+        mask=candidate_mask(model.n, present=model.fem is None),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
         + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent),
         reach=new_reach(model.n),

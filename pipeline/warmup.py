@@ -51,6 +51,9 @@ from .progress import bar, counter
 # through pointers (forces.SpringKernels): 1.4-1.7 s and 0.7-0.8 s for each pass, against
 # 5.4-5.7 s before, three rounds alternately in one process (2026-11-26), scaled by 0.73,
 # the old estimate over the old time.
+# Provot's limit since its pre-pass calls its two passes through pointers, and the passes:
+# one traced cold README run (2026-11-27 at 01:12: 1.9 s, 0.52 s and 0.30 s against 3.3-3.9 s
+# for the limit before), scaled by 0.75.
 # Implicit Euler's Jacobian kernels (forces.JacobianKernels) and XPBD's sweeps since they are
 # pointers chosen per model: one traced cold run each (2026-11-26 at 23:55), scaled by 0.85,
 # collide_all's estimate over its time in that run.
@@ -64,7 +67,8 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
                    "pipeline.forces:_direction_forces": 0.55, "pipeline.forces:_gather": 0.55,
                    "pipeline.forces:fem_internal_forces": 1.5,
                    "pipeline.self_collision:self_collide": 3.1,
-                   "pipeline.constraints:limit_stretch": 2.5,
+                   "pipeline.constraints:limit_stretch": 1.4,
+                   "pipeline.constraints:_flag_long": 0.4, "pipeline.constraints:_pack_mask": 0.25,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.45,
                    "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
                    "pipeline.wind:_band": 3.3, "pipeline.fem:_triangles": 3.7,
@@ -141,12 +145,13 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
-    (System.kernels), the colliders' point range and mesh projection, the wind's band and
-    the FEM's elements (not the absent ones of passes the scene does not use)."""
+    (System.kernels), Provot's pre-pass passes, the colliders' point range and mesh
+    projection, the wind's band and the FEM's elements (not the absent ones of passes the
+    scene does not use)."""
     table = system.colliders
     kernels = system.kernels
-    pointers = [*kernels._replace(springs=None), *(kernels.springs or ()), table.range,
-                table.mesh]
+    pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
+                table.range, table.mesh]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System

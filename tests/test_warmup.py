@@ -70,7 +70,8 @@ COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
           "pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"]
 MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces",
-           "pipeline.forces:_gather", "pipeline.constraints:limit_stretch"],
+           "pipeline.forces:_gather", "pipeline.constraints:limit_stretch",
+           "pipeline.constraints:_flag_long", "pipeline.constraints:_pack_mask"],
           ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
            "pipeline.fem:_hinges", "pipeline.fem:fem_filtered_jacobian_product"]]
 TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
