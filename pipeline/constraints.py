@@ -8,6 +8,8 @@ endpoints as in the pre-pass, so skipping it is exactly what the full walk would
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from numba.core import types
 from shading.jit import KernelPointer, njit, prange
@@ -33,18 +35,26 @@ def existence_bits(exists: np.ndarray) -> np.ndarray:
     return bits
 
 
-def candidate_mask(n: int, present: bool = True) -> tuple:
-    """Scratch for `limit_stretch`: (mask (N + pad,) uint8, long (6, N) bool, and pointers
-    to the pre-pass's two passes, `_flag_long` and `_pack_mask`, absent unless `present`).
-    The pre-pass's parallel loop calls them through pointers: linked in, they were compiled
-    again in each copy numba makes of the loop's body (as forces.SpringKernels)."""
+class CandidateMask(NamedTuple):
+    """Scratch of `limit_stretch`, and the pointers its pre-pass's parallel loop calls:
+    linked in, the two passes were compiled again in each copy numba makes of the loop's
+    body (as forces.SpringKernels)."""
+
+    mask: np.ndarray  # (N + pad,) uint8: bit d, spring (d, p) is to be visited
+    long: np.ndarray  # (6, N) bool: spring (d, p) may be longer than its limit
+    flag: KernelPointer  # _flag_long
+    pack: KernelPointer  # _pack_mask
+
+
+def candidate_mask(n: int, present: bool = True) -> CandidateMask:
+    """Scratch of `limit_stretch` for n points, its passes absent unless `present`."""
     mask, long = np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
     index = types.int64
     flag = KernelPointer(_flag_long, (types.float64[:, ::1], index, types.float64[::1],
                                       types.bool_[::1], index, index), present=present)
     pack = KernelPointer(_pack_mask, (long, types.uint8[::1], mask, index, index),
                          present=present)
-    return mask, long, flag, pack
+    return CandidateMask(mask, long, flag, pack)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -105,7 +115,7 @@ def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """
     n = x.shape[1]
     _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch)
-    mask = scratch[0]
+    mask = scratch.mask
     for p in range(n):
         if mask[p] == 0:
             continue

@@ -15,7 +15,8 @@ from numba.extending import register_jitable, typeof_impl
 from shading.jit import KernelPointer, njit
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
-from .constraints import candidate_mask, existence_bits, limit_stretch, stretch_limits
+from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
+                          stretch_limits)
 from .fem import FemParams, estimate_omega_max, no_fem
 from .forces import (SpringKernels, direction_offsets, fem_internal_forces, gather_order,
                      internal_forces, spring_force_buffer, spring_kernels)
@@ -82,7 +83,7 @@ class System(NamedTuple):
     self_collision: bool  # the scene turns self-collision on
     scratch: tuple | None  # SelfCollisionScratch.as_tuple(), for no points or None when off
     spring_force: np.ndarray  # (6, 3, N + pad) scratch of forces.spring_forces
-    mask: tuple  # scratch of constraints.limit_stretch
+    mask: CandidateMask  # scratch and passes of constraints.limit_stretch
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
     reach: Reach  # which passes can act (pipeline.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
@@ -336,7 +337,8 @@ def position_passes(x, last, system, t_start):
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     if s.fem.nw == 0:  # the classic model (the FEM's stretch pointer is absent)
-        k.stretch(x, s.springs[0], s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+        offsets = s.springs[0]
+        k.stretch(x, offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 

@@ -150,8 +150,8 @@ def kernel_pointers(system) -> list:
     scene does not use)."""
     table = system.colliders
     kernels = system.kernels
-    pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
-                table.range, table.mesh]
+    pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
+                system.mask.pack, table.range, table.mesh]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System
