@@ -10,7 +10,8 @@ FEM, default both; every integrator runs with either) and writes into DIR:
     <scene>_reference.json  the references' facts, per model;
     <scene>_stability.{png,svg,csv}  largest stable step versus the stiffness (classic: ks;
         FEM: cloth.fem.stretch, shear kept at the scene's shear/stretch ratio) on a small copy
-        of the scene (--stability-grid, default 10x10), found by bisection, with the
+        of the scene (--stability-grid, default 10x10), found by bisection over trials of
+        --stability-time simulated seconds (default STABILITY_TIME), with the
         theoretical explicit limit 2 / omega_max (pipeline.system.stability_limit); one
         panel per model.
 The work-precision runs use a copy of the scene at most DEFAULT_GRID points per side unless
@@ -347,17 +348,19 @@ def is_stable(data: dict, integrator: str, dt: float, t_end: float = STABILITY_T
 
 
 def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
-                        iterations: int = 6) -> tuple[float, str]:
+                        iterations: int = 6, t_end: float = STABILITY_TIME
+                        ) -> tuple[float, str]:
     """Largest stable step in [lo, hi]: scan up from lo by factors of 2 to the first
     unstable step, then bisect (in log dt) between it and the last stable one, so the answer
     is the first failure (stability need not be monotone in dt: a few huge steps can pass).
-    Returns (dt, note): note '' , '>=' (stable up to hi) or '<' (unstable at lo)."""
-    if not is_stable(data, integrator, lo):
+    Returns (dt, note): note '' , '>=' (stable up to hi) or '<' (unstable at lo). Each
+    trial simulates t_end seconds (is_stable)."""
+    if not is_stable(data, integrator, lo, t_end):
         return lo, "<"
     stable = lo
     while True:
         trial = min(2.0 * stable, hi)
-        if not is_stable(data, integrator, trial):
+        if not is_stable(data, integrator, trial, t_end):
             unstable = trial
             break
         if trial >= hi:
@@ -365,7 +368,7 @@ def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
         stable = trial
     for _ in range(iterations):
         mid = math.sqrt(stable * unstable)
-        if is_stable(data, integrator, mid):
+        if is_stable(data, integrator, mid, t_end):
             stable = mid
         else:
             unstable = mid
@@ -373,10 +376,10 @@ def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
 
 
 def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
-              log=print) -> list[dict]:
+              log=print, t_end: float = STABILITY_TIME) -> list[dict]:
     """Largest stable step per integrator and stiffness for the scene's model: ks_values are
     cloth.ks (classic; default KS_SWEEP) or cloth.fem.stretch (FEM; default STRETCH_SWEEP,
-    see with_stiffness)."""
+    see with_stiffness); each trial simulates t_end seconds."""
     rows = []
     data0 = resized(scene_data(scene), grid, grid)
     model = data0.get("simulation", {}).get("model", "classic")
@@ -393,7 +396,7 @@ def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
             lo = dt_theory / 16 if name != "euler" else min(dt_theory, dt_euler) / 4
             hi = dt_theory * (200 if name in ("implicit-euler", "xpbd") else 16)
             t0 = time.perf_counter()
-            dt, note = largest_stable_step(data, name, lo, hi)
+            dt, note = largest_stable_step(data, name, lo, hi, t_end=t_end)
             rows.append({"model": model, "integrator": name, "stiffness": ks,
                          "dt_stable": dt, "bound": note,
                          "omega_max": omega, "dt_theory": dt_theory,
@@ -544,6 +547,10 @@ def main(argv=None) -> int:
     parser.add_argument("--stretch", default=",".join(f"{k:g}" for k in STRETCH_SWEEP),
                         help="FEM: cloth.fem.stretch values of the stability search, "
                              "comma-separated (shear scaled alike)")
+    parser.add_argument("--stability-time", type=float, default=STABILITY_TIME,
+                        help="simulated seconds of each stability trial (default "
+                             f"{STABILITY_TIME:g}; shorter is quicker and may pass a slow "
+                             "blow-up)")
     parser.add_argument("--skip-stability", action="store_true")
     parser.add_argument("--skip-work-precision", action="store_true")
     args = parser.parse_args(argv)
@@ -553,6 +560,8 @@ def main(argv=None) -> int:
         parser.error(f"--models: unknown model {', '.join(unknown) or '(none)'}; expected "
                      f"a comma-separated list of {', '.join(MODELS)}")
     args.models = [m for m in MODELS if m in models]
+    if not args.stability_time > 0:  # also NaN
+        parser.error(f"--stability-time: expected seconds > 0, got {args.stability_time:g}")
 
     set_threads(1)
     with warnings.catch_warnings():
@@ -616,10 +625,11 @@ def _bench_into(args, out: Path) -> int:
         rows = []
         for model in args.models:
             rows += stability(per_model[model], g,
-                              tuple(float(k) for k in sweeps[model].split(",")))
+                              tuple(float(k) for k in sweeps[model].split(",")),
+                              t_end=args.stability_time)
         stem = out / f"{name}_stability"
         write_csv(stem.with_suffix(".csv"), rows)
-        chart_stability(rows, f"{name} ({g}x{g}): largest stable step over {STABILITY_TIME} s "
+        chart_stability(rows, f"{name} ({g}x{g}): largest stable step over {args.stability_time:g} s "
                         f"(guard + probe strain p99 < {STRAIN_LIMIT})", stem,
                         {m: material(d, m, swept=True) for m, d in per_model.items()})
         print(f"stability took {time.perf_counter() - t1:.1f}s")

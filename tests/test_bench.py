@@ -145,7 +145,8 @@ def test_bench_fem_only_and_bad_model(tmp_path):
     pytest.importorskip("matplotlib")
     out = tmp_path / "bench"
     assert main([str(scene_path("pinned2")), "--out", str(out), "--models", "fem",
-                 "--grid", "5", "--stability-grid", "5", "--time", "0.05", "--sweep", "30",
+                 "--grid", "5", "--stability-grid", "5", "--stability-time", "0.1",
+                 "--time", "0.05", "--sweep", "30",
                  "--stretch", "300,3000"]) == 0
     with (out / "pinned2_work_precision.csv").open() as fh:
         rows = list(csv.DictReader(fh))
@@ -161,3 +162,7 @@ def test_bench_fem_only_and_bad_model(tmp_path):
             assert (out / f"{stem}.{ext}").stat().st_size > 0
     with pytest.raises(SystemExit):
         main([str(scene_path("pinned2")), "--out", str(out), "--models", "classic,cosserat"])
+    for bad in ("0", "-1", "nan"):
+        with pytest.raises(SystemExit) as stop:
+            main([str(scene_path("pinned2")), "--out", str(out), "--stability-time", bad])
+        assert stop.value.code == 2

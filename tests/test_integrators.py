@@ -51,7 +51,8 @@ def test_bench_writes_charts_and_csv(tmp_path):
 
     out = tmp_path / "bench"
     assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
-                 "--stability-grid", "6", "--time", "0.1", "--sweep", "8,30",
+                 "--stability-grid", "6", "--stability-time", "0.1", "--time", "0.1",
+                 "--sweep", "8,30",
                  "--ks", "1e4", "--stretch", "300"]) == 0
     for stem in ("pinned2_work_precision", "pinned2_stability"):
         for ext in ("png", "svg", "csv"):
