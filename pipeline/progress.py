@@ -1,6 +1,7 @@
 """Progress bars on stderr (tqdm), and a no-op bar when they are off."""
 from __future__ import annotations
 
+import os
 import sys
 
 
@@ -59,7 +60,7 @@ def bar(total: int, desc: str, unit: str, enabled: bool, position: int = 0):
     from tqdm import tqdm
 
     return _Bar(tqdm(total=total, desc=desc, unit=unit, position=position, leave=False,
-                     file=sys.stderr, dynamic_ncols=True, smoothing=0.1,
+                     file=sys.stderr, smoothing=0.1, **_size(sys.stderr),
                      bar_format="{desc:<9} {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} "
                                 "[{elapsed}<{remaining}, {rate_fmt}]"))
 
@@ -70,5 +71,18 @@ def counter(desc: str, unit: str, enabled: bool):
         return _NullBar()
     from tqdm import tqdm
 
-    return _Bar(tqdm(desc=desc, unit=unit, leave=False, file=sys.stderr, dynamic_ncols=True,
+    return _Bar(tqdm(desc=desc, unit=unit, leave=False, file=sys.stderr, **_size(sys.stderr),
                      bar_format="{desc:<9} {n_fmt} {unit}s [{elapsed}]"))
+
+
+def _size(stream) -> dict:
+    """tqdm's screen size: the terminal's, followed as it changes, or 80 x 24 on a terminal
+    that reports 0 x 0 (a pseudo-terminal nobody sized, as `script` without a terminal of
+    its own gives: tqdm drew nothing there, every bar being outside the screen)."""
+    try:
+        size = os.get_terminal_size(stream.fileno())
+    except (AttributeError, OSError, ValueError):  # not a real terminal: tqdm finds out
+        return {"dynamic_ncols": True}
+    if size.columns > 0 and size.lines > 0:
+        return {"dynamic_ncols": True}
+    return {"ncols": size.columns or 80, "nrows": size.lines or 24}

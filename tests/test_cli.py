@@ -672,6 +672,36 @@ def test_progress_bars_on_a_terminal_only(env, scene, tmp_path, monkeypatch):
     assert tty.buf.getvalue() == ""
 
 
+def test_bars_show_on_a_terminal_that_reports_no_width():
+    """A pseudo-terminal nobody sized (`script` run without a terminal of its own) reports
+    0 columns: tqdm, left to follow that width, drew nothing at all."""
+    leader, follower = os.openpty()  # 0 x 0 until someone sets its size
+    try:
+        code = ("from pipeline.progress import bar, counter\n"
+                "b = bar(3, 'compile', 'kernel', True); b.update(3); b.close()\n"
+                "c = counter('compile', 'kernel', True); c.update(2); c.close()\n")
+        subprocess.run([sys.executable, "-c", code], stderr=follower, env=child_env(),
+                       check=True, timeout=60)
+        os.close(follower)
+        follower = None
+        out = b""
+        while True:
+            try:
+                chunk = os.read(leader, 65536)
+            except OSError:  # EIO: the writer is gone
+                break
+            if not chunk:
+                break
+            out += chunk
+    finally:
+        os.close(leader)
+        if follower is not None:
+            os.close(follower)
+    text = out.decode(errors="replace")
+    assert re.search(r"compile +0%\|.*\| 0/3 \[", text), text  # the bar as it starts
+    assert re.search(r"compile +0 kernels \[", text), text  # the count as it starts
+
+
 def test_a_message_under_a_bar_starts_on_a_cleared_line(monkeypatch):
     """A message said while a bar is on screen (a stability warning during the first run's
     compile) blanks the bar's line first and draws the bar again below: printed as is, it
