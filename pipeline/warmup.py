@@ -44,9 +44,9 @@ from .progress import bar, counter
 # old 5.0 s since their two parallel loops are one kernel, five alternating runs). They
 # split the kernels between this process and the helper (`split`) and give the estimate of
 # the first-run message.
-# `_collide_range` since numba's inliner copies a callee once (shading.jit._InlinerCopies):
-# 0.57 of its time before, three rounds alternately in one process (2.1-2.5 s against
-# 2.9-4.8 s, 2026-11-25 afternoon).
+# The colliders' range kernel and each kind's sweep since the sweeps are kernels of their own
+# (colliders._sweep_of): one cold run per kind, traced (2026-11-27 at 03:35: the range
+# 0.22-0.42 s, sphere 1.30 s, plane 1.34-1.57 s, box 2.06 s, mesh 2.24 s), scaled by 0.7.
 # The classic internal forces since their two passes are kernels of their own, called
 # through pointers (forces.SpringKernels): 1.4-1.7 s and 0.7-0.8 s for each pass, against
 # 5.4-5.7 s before, three rounds alternately in one process (2026-11-26), scaled by 0.73,
@@ -61,7 +61,9 @@ from .progress import bar, counter
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
 COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
-                   "pipeline.colliders:_collide_range": 1.5,
+                   "pipeline.colliders:_collide_range": 0.2,
+                   "pipeline.colliders:sweep_sphere": 0.9, "pipeline.colliders:sweep_plane": 1.0,
+                   "pipeline.colliders:sweep_box": 1.4, "pipeline.colliders:sweep_mesh": 1.6,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
                    "pipeline.forces:internal_forces": 1.1,
                    "pipeline.forces:_direction_forces": 0.55, "pipeline.forces:_gather": 0.55,
@@ -145,13 +147,14 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
-    (System.kernels), Provot's pre-pass passes, the colliders' point range and mesh
-    projection, the wind's band and the FEM's elements (not the absent ones of passes the
+    (System.kernels), Provot's pre-pass passes, the colliders' point range, mesh
+    projection and sweeps, the wind's band and the FEM's elements (not the absent ones of passes the
     scene does not use)."""
     table = system.colliders
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
-                system.mask.pack, table.range, table.mesh]
+                system.mask.pack, table.range, table.mesh, table.sphere, table.plane,
+                table.box, table.mesh_sweep]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System

@@ -65,7 +65,8 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
 
 
 # the jobs a scene can have (warmup.sim_jobs): these always, a model's, a collider table's
-# mesh projection or its stand-in, wind or not, self-collision or not
+# (a mesh's projection and sweep, or the projection's stand-in, and the sweeps of its other
+# kinds), wind or not, self-collision or not
 COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
           "pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"]
@@ -74,7 +75,14 @@ MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces
            "pipeline.constraints:_flag_long", "pipeline.constraints:_pack_mask"],
           ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
            "pipeline.fem:_hinges", "pipeline.fem:fem_filtered_jacobian_product"]]
-TABLES = [["pipeline.colliders.mesh:project"], ["pipeline.colliders:_unmoved"]]
+SWEEPS = ["pipeline.colliders:sweep_sphere", "pipeline.colliders:sweep_plane",
+          "pipeline.colliders:sweep_box"]
+MESH = ["pipeline.colliders.mesh:project", "pipeline.colliders:sweep_mesh"]
+# two tables for the split test: a mesh and a plane (bowl's), a sphere (the README's)
+TABLES = [MESH + [SWEEPS[1]], ["pipeline.colliders:_unmoved", SWEEPS[0]]]
+# every table: a mesh or not, and any of the other kinds
+ALL_TABLES = [base + list(kinds) for base in (MESH, ["pipeline.colliders:_unmoved"])
+              for r in range(len(SWEEPS) + 1) for kinds in itertools.combinations(SWEEPS, r)]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
@@ -95,9 +103,9 @@ LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"}
 
 
-def _scenes() -> list[list[str]]:
+def _scenes(tables=TABLES) -> list[list[str]]:
     return [COMMON + m + t + w + c + i[k] for (k, m), t, w, c, i in
-            itertools.product(enumerate(MODELS), TABLES, WINDS, SELF, INTEGRATORS)]
+            itertools.product(enumerate(MODELS), tables, WINDS, SELF, INTEGRATORS)]
 
 
 def _jobs(names) -> list[warmup.Job]:
@@ -114,7 +122,8 @@ def test_every_job_of_a_scene_has_an_estimate():
     from pipeline.simulation import cloth_model
     from pipeline.system import build_system
 
-    assert set().union(*_scenes()) == set(warmup.COMPILE_SECONDS)
+    every = [set(listed) for listed in _scenes(ALL_TABLES)]
+    assert set().union(*every) == set(warmup.COMPILE_SECONDS)
     assert set(warmup.STEP_SECONDS) == set(INTEGRATORS)  # every stepping kernel's estimate
     seen = set()
     for path in sorted(SCENES.glob("*.json")):
@@ -122,12 +131,13 @@ def test_every_job_of_a_scene_has_an_estimate():
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}
         assert {job.name for job in warmup.sim_jobs(system) if job.linked} <= LINKED
-        assert names in [set(listed) for listed in _scenes()]  # a combination above
+        assert names in every  # a combination above
         for integrator in INTEGRATORS:
             names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
         assert names <= set(warmup.COMPILE_SECONDS), path.name
         seen |= names
-    # the FEM's kernels, a mesh's projection, wind and self-collision all occur
+    # the FEM's kernels, a mesh's projection, every collider kind, wind and self-collision
+    # all occur
     assert seen == set(warmup.COMPILE_SECONDS)
 
 

@@ -8,8 +8,9 @@ A collider kind is one module in this package defining:
     project(params, c, data, x, y, z, lx, ly, lz) -> (x, y, z)   an @njit point projection
                         reading its parameters from row c of the packed table, in the
                         collider's rest frame (the pose the scene file gives).
-Adding a kind: its module, plus its entry in `_KINDS` and one branch in `_project`
-(numba compiles static dispatch only).
+Adding a kind: its module, plus its entry in `_KINDS`, its sweep in `_SWEEPS` (made by
+`_sweep_of` from its projection) and a ColliderTable field for it, in KIND order, and its
+branch in `_collide_range`.
 
 Motion. A collider with keyframes has pose (R(t), T(t)) at time t: a point p of its rest
 frame is at R(t) (p - pivot) + pivot + T(t) in the world (pivot: sphere origin, plane point,
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from types import FunctionType
 from typing import NamedTuple
 
 import numpy as np
@@ -70,6 +72,12 @@ class ColliderTable(NamedTuple):
     pose: np.ndarray  # (C, 2, POSE_WIDTH) scratch: poses at the start and the end of a step
     active: np.ndarray  # (C,) uint8: 0 = skipped while nothing can reach it (pipeline.reach)
     mesh: KernelPointer | None = None  # mesh.project, or _unmoved when no collider is a mesh
+    # each kind's sweep (sweep_sphere, ...); absent for a kind the scene has not (four fields:
+    # numba's parallel loops take no tuple of pointers)
+    sphere: KernelPointer | None = None
+    plane: KernelPointer | None = None
+    box: KernelPointer | None = None
+    mesh_sweep: KernelPointer | None = None
     range: KernelPointer | None = None  # _collide_range for this table; None inside it
 
 
@@ -105,6 +113,11 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
     table = table._replace(mesh=KernelPointer(
         projection, (table.params, np.int64(0), table.data) + (0.0,) * 6, POINT))
     field = types.float64[:, ::1]  # positions, and positions a step earlier: (3, N)
+    sweep_args = (table.params, table.data, table.mesh, table.pose, table.pivot, np.int64(0),
+                  False, field, field, types.uint8[::1], np.int64(0), np.int64(1))
+    table = table._replace(**{
+        field: KernelPointer(sweep, sweep_args, present=bool(np.any(kinds == k)))
+        for k, (field, sweep) in enumerate(zip(_SWEEP_FIELDS, _SWEEPS))})
     return table._replace(range=KernelPointer(
         _collide_range, (field, field, types.uint8[::1], table, np.int64(0), np.int64(1))))
 
@@ -202,44 +215,75 @@ def _to_world(pose, c, s, px, py, pz, x, y, z):
             pz + pose[c, s, 6] * dx + pose[c, s, 7] * dy + pose[c, s, 8] * dz + pose[c, s, 11])
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _project(kind, params, c, data, mesh_project, x, y, z, lx, ly, lz):
-    if kind == sphere.KIND:
-        return sphere.project(params, c, data, x, y, z, lx, ly, lz)
-    if kind == plane.KIND:
-        return plane.project(params, c, data, x, y, z, lx, ly, lz)
-    if kind == box.KIND:
-        return box.project(params, c, data, x, y, z, lx, ly, lz)
+def _sweep(params, data, mesh_project, pose, pivot, c, moving, x, last, pinned, lo, hi):
+    """One collider (c) on the free points [lo, hi): the source of each kind's sweep
+    (`_sweep_of`), in which `project` is the kind's projection."""
+    if not moving:  # the rest frame is the world's
+        for p in range(lo, hi):
+            if pinned[p] == 0:
+                x[0, p], x[1, p], x[2, p] = project(params, c, data, mesh_project, x[0, p],
+                                                    x[1, p], x[2, p], last[0, p],
+                                                    last[1, p], last[2, p])
+        return
+    px, py, pz = pivot[c, 0], pivot[c, 1], pivot[c, 2]
+    for p in range(lo, hi):
+        if pinned[p]:
+            continue
+        rx, ry, rz = _to_rest(pose, c, 1, px, py, pz, x[0, p], x[1, p], x[2, p])
+        rlx, rly, rlz = _to_rest(pose, c, 0, px, py, pz, last[0, p], last[1, p], last[2, p])
+        qx, qy, qz = project(params, c, data, mesh_project, rx, ry, rz, rlx, rly, rlz)
+        if qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
+            x[0, p], x[1, p], x[2, p] = _to_world(pose, c, 1, px, py, pz, qx, qy, qz)
+
+
+def _sweep_of(project, name: str):
+    """The kernel `name`: `_sweep` with `project` a kind's projection (rest frame; the
+    mesh's pointer is every kind's argument). One kernel per kind, from one source: each
+    point's loop has one kind and keeps its parameters in registers (one loop testing the
+    kind of every collider at every point took 2-2.5x the time: 24-30 against 9-13 us per
+    pass on the sphere scene, one thread), and a scene compiles the kernels of its kinds
+    only, called through pointers (ColliderTable). `project` is a global of the kernel's own
+    (numba reads globals when it compiles; a closure's would key its cache on the
+    dispatcher's pickle, which differs in every process). Compiled without numba's
+    reference counts (`_nrt=False`, as numba's own sort and string kernels are: nothing
+    here allocates): with them, the inlined projection's array arguments cost an atomic
+    incref and decref each per point (3.7x the whole pass on the sphere scene)."""
+    function = FunctionType(_sweep.__code__, {**globals(), "project": project}, name)
+    function.__qualname__ = name  # its own cache file and warm-up job
+    function.__doc__ = _sweep.__doc__
+    return njit(cache=True, nogil=True, error_model="numpy", _nrt=False,
+                no_cpython_wrapper=True)(function)
+
+
+@njit(nogil=True, inline="always")
+def _sphere(params, c, data, mesh_project, x, y, z, lx, ly, lz):
+    return sphere.project(params, c, data, x, y, z, lx, ly, lz)
+
+
+@njit(nogil=True, inline="always")
+def _plane(params, c, data, mesh_project, x, y, z, lx, ly, lz):
+    return plane.project(params, c, data, x, y, z, lx, ly, lz)
+
+
+@njit(nogil=True, inline="always")
+def _box(params, c, data, mesh_project, x, y, z, lx, ly, lz):
+    return box.project(params, c, data, x, y, z, lx, ly, lz)
+
+
+@njit(nogil=True, inline="always")
+def _mesh(params, c, data, mesh_project, x, y, z, lx, ly, lz):
     if mesh.far(params, c, data, x, y, z, lx, ly, lz):  # most points: no call
         return x, y, z
     return mesh_project(params, c, data, x, y, z, lx, ly, lz)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def collide_point(kinds, params, data, key_count, pivot, pose, active, mesh_project, x, y, z,
-                  lx, ly, lz):
-    """Apply every active collider, in order, to the point at (x, y, z) that was at
-    (lx, ly, lz) at the start of the step (the fields of a ColliderTable; poses from
-    update_poses). A mesh's projection is called through a pointer (ColliderTable.mesh),
-    for the points near its surface: compiled on its own (about 3 s), and only for a
-    scene that has a mesh."""
-    for c in range(kinds.shape[0]):
-        if active[c] == 0:
-            continue
-        moving = key_count[c] != 0
-        rx, ry, rz, rlx, rly, rlz = x, y, z, lx, ly, lz  # a static collider's rest frame
-        if moving:
-            rx, ry, rz = _to_rest(pose, c, 1, pivot[c, 0], pivot[c, 1], pivot[c, 2], x, y, z)
-            rlx, rly, rlz = _to_rest(pose, c, 0, pivot[c, 0], pivot[c, 1], pivot[c, 2],
-                                     lx, ly, lz)
-        # one call site: each kind's projection is inlined (compiled) once, not twice
-        qx, qy, qz = _project(kinds[c], params, c, data, mesh_project, rx, ry, rz, rlx, rly,
-                              rlz)
-        if not moving:
-            x, y, z = qx, qy, qz
-        elif qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
-            x, y, z = _to_world(pose, c, 1, pivot[c, 0], pivot[c, 1], pivot[c, 2], qx, qy, qz)
-    return x, y, z
+# by KIND (sphere 0, plane 1, box 2, mesh 3)
+sweep_sphere = _sweep_of(_sphere, "sweep_sphere")
+sweep_plane = _sweep_of(_plane, "sweep_plane")
+sweep_box = _sweep_of(_box, "sweep_box")
+sweep_mesh = _sweep_of(_mesh, "sweep_mesh")
+_SWEEPS = (sweep_sphere, sweep_plane, sweep_box, sweep_mesh)
+_SWEEP_FIELDS = ("sphere", "plane", "box", "mesh_sweep")  # ColliderTable's, by KIND
 
 
 @njit(cache=True, nogil=True)
@@ -252,21 +296,26 @@ def update_poses(table, t_start, t_end):
             pose_at(table.keys[c], n, t_end, table.pose[c, 1])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True)
 def _collide_range(x, last, pinned, table, lo, hi):
-    """collide_point on the free points [lo, hi). Compiled without numba's reference counts
-    (`_nrt=False`, as numba's own sort and string kernels are: nothing here allocates): with
-    them, collide_point's inlined array arguments cost an atomic incref and decref each per
-    point, 3.7x the whole pass (92 against 25 us per call on the sphere scene)."""
-    kinds, params, data = table.kinds, table.params, table.data
-    key_count, pivot, pose, active = table.key_count, table.pivot, table.pose, table.active
-    mesh_project = table.mesh
-    for p in range(lo, hi):
-        if pinned[p]:
+    """Every active collider, in order, on the free points [lo, hi), with the poses of
+    update_poses: each through its kind's sweep (each point meets the colliders in order
+    all the same: points do not interact here)."""
+    params, data, mesh_project, pose, pivot = (table.params, table.data, table.mesh,
+                                               table.pose, table.pivot)
+    for c in range(table.kinds.shape[0]):
+        if table.active[c] == 0:
             continue
-        x[0, p], x[1, p], x[2, p] = collide_point(
-            kinds, params, data, key_count, pivot, pose, active, mesh_project, x[0, p],
-            x[1, p], x[2, p], last[0, p], last[1, p], last[2, p])
+        kind, moving = table.kinds[c], table.key_count[c] != 0
+        if kind == sphere.KIND:
+            sweep = table.sphere
+        elif kind == plane.KIND:
+            sweep = table.plane
+        elif kind == box.KIND:
+            sweep = table.box
+        else:
+            sweep = table.mesh_sweep
+        sweep(params, data, mesh_project, pose, pivot, c, moving, x, last, pinned, lo, hi)
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
