@@ -221,9 +221,9 @@ def _sweep(params, data, mesh_project, pose, pivot, c, moving, x, last, pinned, 
     if not moving:  # the rest frame is the world's
         for p in range(lo, hi):
             if pinned[p] == 0:
-                x[0, p], x[1, p], x[2, p] = project(params, c, data, mesh_project, x[0, p],
-                                                    x[1, p], x[2, p], last[0, p],
-                                                    last[1, p], last[2, p])
+                x[0, p], x[1, p], x[2, p] = project(  # noqa: F821 (_sweep_of's global)
+                    params, c, data, mesh_project, x[0, p], x[1, p], x[2, p], last[0, p],
+                    last[1, p], last[2, p])
         return
     px, py, pz = pivot[c, 0], pivot[c, 1], pivot[c, 2]
     for p in range(lo, hi):
@@ -231,7 +231,8 @@ def _sweep(params, data, mesh_project, pose, pivot, c, moving, x, last, pinned, 
             continue
         rx, ry, rz = _to_rest(pose, c, 1, px, py, pz, x[0, p], x[1, p], x[2, p])
         rlx, rly, rlz = _to_rest(pose, c, 0, px, py, pz, last[0, p], last[1, p], last[2, p])
-        qx, qy, qz = project(params, c, data, mesh_project, rx, ry, rz, rlx, rly, rlz)
+        qx, qy, qz = project(params, c, data, mesh_project,  # noqa: F821 (as above)
+                             rx, ry, rz, rlx, rly, rlz)
         if qx != rx or qy != ry or qz != rz:  # untouched points keep their exact bits
             x[0, p], x[1, p], x[2, p] = _to_world(pose, c, 1, px, py, pz, qx, qy, qz)
 
