@@ -46,7 +46,9 @@ from .progress import bar, counter
 # the first-run message.
 # The colliders' range kernel and each kind's sweep since the sweeps are kernels of their own
 # (colliders._sweep_of): one cold run per kind, traced (2026-11-27 at 03:35: the range
-# 0.22-0.42 s, sphere 1.30 s, plane 1.34-1.57 s, box 2.06 s, mesh 2.24 s), scaled by 0.7.
+# 0.22-0.42 s, sphere 1.30 s, plane 1.34-1.57 s, box 2.06 s, mesh 2.24 s), scaled by 0.7;
+# the keyframes' poses since they are a pointer of their own (0.97 s traced, scaled alike),
+# and collide_all without them (its 2.8 s in a traced README run less update_poses' 1.2 s).
 # The classic internal forces since their two passes are kernels of their own, called
 # through pointers (forces.SpringKernels): 1.4-1.7 s and 0.7-0.8 s for each pass, against
 # 5.4-5.7 s before, three rounds alternately in one process (2026-11-26), scaled by 0.73,
@@ -60,7 +62,8 @@ from .progress import bar, counter
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 2.3,
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
+                   "pipeline.colliders:update_poses": 0.7,
                    "pipeline.colliders:_collide_range": 0.2,
                    "pipeline.colliders:sweep_sphere": 0.9, "pipeline.colliders:sweep_plane": 1.0,
                    "pipeline.colliders:sweep_box": 1.4, "pipeline.colliders:sweep_mesh": 1.6,
@@ -148,13 +151,13 @@ def _cache_index(disp) -> list[tuple]:
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
     (System.kernels), Provot's pre-pass passes, the colliders' point range, mesh
-    projection and sweeps, the wind's band and the FEM's elements (not the absent ones of passes the
+    projection, sweeps and keyframe poses, the wind's band and the FEM's elements (not the absent ones of passes the
     scene does not use)."""
     table = system.colliders
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
                 system.mask.pack, table.range, table.mesh, table.sphere, table.plane,
-                table.box, table.mesh_sweep]
+                table.box, table.mesh_sweep, table.poses]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System

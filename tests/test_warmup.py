@@ -78,10 +78,12 @@ MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces
 SWEEPS = ["pipeline.colliders:sweep_sphere", "pipeline.colliders:sweep_plane",
           "pipeline.colliders:sweep_box"]
 MESH = ["pipeline.colliders.mesh:project", "pipeline.colliders:sweep_mesh"]
-# two tables for the split test: a mesh and a plane (bowl's), a sphere (the README's)
-TABLES = [MESH + [SWEEPS[1]], ["pipeline.colliders:_unmoved", SWEEPS[0]]]
-# every table: a mesh or not, and any of the other kinds
-ALL_TABLES = [base + list(kinds) for base in (MESH, ["pipeline.colliders:_unmoved"])
+POSES = ["pipeline.colliders:update_poses"]  # a table with keyframes
+# two tables for the split test: a keyframed mesh and a plane, a sphere (the README's)
+TABLES = [MESH + [SWEEPS[1]] + POSES, ["pipeline.colliders:_unmoved", SWEEPS[0]]]
+# every table: a mesh or not, any of the other kinds, keyframes or not
+ALL_TABLES = [base + list(kinds) + poses
+              for base in (MESH, ["pipeline.colliders:_unmoved"]) for poses in ([], POSES)
               for r in range(len(SWEEPS) + 1) for kinds in itertools.combinations(SWEEPS, r)]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
@@ -136,8 +138,8 @@ def test_every_job_of_a_scene_has_an_estimate():
             names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
         assert names <= set(warmup.COMPILE_SECONDS), path.name
         seen |= names
-    # the FEM's kernels, a mesh's projection, every collider kind, wind and self-collision
-    # all occur
+    # the FEM's kernels, a mesh's projection, every collider kind, keyframes, wind and
+    # self-collision all occur
     assert seen == set(warmup.COMPILE_SECONDS)
 
 

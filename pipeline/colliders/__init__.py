@@ -78,6 +78,7 @@ class ColliderTable(NamedTuple):
     plane: KernelPointer | None = None
     box: KernelPointer | None = None
     mesh_sweep: KernelPointer | None = None
+    poses: KernelPointer | None = None  # update_poses; absent when no collider has keyframes
     range: KernelPointer | None = None  # _collide_range for this table; None inside it
 
 
@@ -118,6 +119,9 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
     table = table._replace(**{
         field: KernelPointer(sweep, sweep_args, present=bool(np.any(kinds == k)))
         for k, (field, sweep) in enumerate(zip(_SWEEP_FIELDS, _SWEEPS))})
+    table = table._replace(poses=KernelPointer(
+        update_poses, (table.keys, table.key_count, table.pose, 0.0, 0.0),
+        present=bool(np.any(key_count))))
     return table._replace(range=KernelPointer(
         _collide_range, (field, field, types.uint8[::1], table, np.int64(0), np.int64(1))))
 
@@ -287,14 +291,16 @@ _SWEEPS = (sweep_sphere, sweep_plane, sweep_box, sweep_mesh)
 _SWEEP_FIELDS = ("sphere", "plane", "box", "mesh_sweep")  # ColliderTable's, by KIND
 
 
-@njit(cache=True, nogil=True)
-def update_poses(table, t_start, t_end):
-    """Poses of the keyframed colliders at the start and the end of a step."""
-    for c in range(table.kinds.shape[0]):
-        n = table.key_count[c]
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def update_poses(keys, key_count, pose, t_start, t_end):
+    """Poses of the keyframed colliders at the start and the end of a step (a ColliderTable's
+    fields). Called through a pointer (ColliderTable.poses), present only in a scene with
+    keyframes: a static scene does not compile the keyframes' interpolation (about 1 s)."""
+    for c in range(key_count.shape[0]):
+        n = key_count[c]
         if n > 0:
-            pose_at(table.keys[c], n, t_start, table.pose[c, 0])
-            pose_at(table.keys[c], n, t_end, table.pose[c, 1])
+            pose_at(keys[c], n, t_start, pose[c, 0])
+            pose_at(keys[c], n, t_end, pose[c, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True)
@@ -340,5 +346,8 @@ def collide_all(x, last, pinned, table, t_start, t_end):
             break
     else:  # none active, or no collider
         return
-    update_poses(table, t_start, t_end)
+    for n in table.key_count:  # the poses pointer is absent without keyframes
+        if n:
+            table.poses(table.keys, table.key_count, table.pose, t_start, t_end)
+            break
     _collide_points(x, last, pinned, table)
