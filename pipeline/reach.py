@@ -51,6 +51,17 @@ def new_reach(n: int) -> Reach:
                  pairs=np.zeros((0, 2), dtype=np.int64), counts=np.zeros(3, dtype=np.int64))
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _total(x, a):
+    """The sum of x[a, :] in index order (np.sum's, in a loop: a kernel using numba's np.sum
+    makes every process that loads it from the cache import numba.np.arraymath, whose BLAS
+    check imports scipy: 0.27 s of a warm run)."""
+    total = 0.0
+    for p in range(x.shape[1]):
+        total += x[a, p]
+    return total
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def reach_check(x, reach, active, thickness):
     """Before a step's passes: re-enable what the positions x (3, N) may now reach.
@@ -59,25 +70,20 @@ def reach_check(x, reach, active, thickness):
     r.counts[0] += 1
     if r.armed[0] or r.armed[1]:
         n = x.shape[1]
-        mean = np.zeros(3)
-        for a in range(3):  # np.sum's order, in a loop: a kernel using numba's np.sum makes
-            # every process that loads it from the cache import numba.np.arraymath, whose
-            # BLAS check imports scipy (0.27 s of a warm run)
-            total = 0.0
-            for p in range(n):
-                total += x[a, p]
-            mean[a] = total / n - r.mean_anchor[a]
+        # the mean motion per axis, as scalars: an array here (np.zeros) made this the
+        # first kernel of a first run to compile numba's array allocation (about 0.5 s)
+        m0 = _total(x, 0) / n - r.mean_anchor[0]
+        m1 = _total(x, 1) / n - r.mean_anchor[1]
+        m2 = _total(x, 2) / n - r.mean_anchor[2]
         far = 0.0
         drift = 0.0
         for p in range(n):
-            d2 = e2 = 0.0
-            for a in range(3):
-                d = x[a, p] - r.anchor[a, p]
-                d2 += d * d
-                e = d - mean[a]
-                e2 += e * e
-            far = max(far, d2)
-            drift = max(drift, e2)
+            d0 = x[0, p] - r.anchor[0, p]
+            d1 = x[1, p] - r.anchor[1, p]
+            d2 = x[2, p] - r.anchor[2, p]
+            e0, e1, e2 = d0 - m0, d1 - m1, d2 - m2
+            far = max(far, d0 * d0 + d1 * d1 + d2 * d2)
+            drift = max(drift, e0 * e0 + e1 * e1 + e2 * e2)
         if r.armed[0] and not far <= r.budget_sq[0]:  # also for NaN
             r.armed[0] = 0
             active[:] = 1
