@@ -629,8 +629,9 @@ def _bench_into(args, out: Path) -> int:
                               t_end=args.stability_time)
         stem = out / f"{name}_stability"
         write_csv(stem.with_suffix(".csv"), rows)
-        chart_stability(rows, f"{name} ({g}x{g}): largest stable step over {args.stability_time:g} s "
-                        f"(guard + probe strain p99 < {STRAIN_LIMIT})", stem,
+        chart_stability(rows, f"{name} ({g}x{g}): largest stable step over "
+                        f"{args.stability_time:g} s (guard + probe strain p99 < {STRAIN_LIMIT})",
+                        stem,
                         {m: material(d, m, swept=True) for m, d in per_model.items()})
         print(f"stability took {time.perf_counter() - t1:.1f}s")
     print(f"done in {time.perf_counter() - t0:.1f}s; wrote {out}")

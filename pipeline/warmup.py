@@ -45,7 +45,7 @@ from .progress import bar, counter
 # split the kernels between this process and the helper (`split`) and give the estimate of
 # the first-run message.
 # The colliders' range kernel and each kind's sweep since the sweeps are kernels of their own
-# (colliders._sweep_of): one cold run per kind, traced (2026-11-27 at 03:35: the range
+# (colliders._sweep_of): one cold run per kind, traced (2026-11-27 at 02:50: the range
 # 0.22-0.42 s, sphere 1.30 s, plane 1.34-1.57 s, box 2.06 s, mesh 2.24 s), scaled by 0.7;
 # the keyframes' poses since they are a pointer of their own (0.97 s traced, scaled alike),
 # and collide_all without them (its 2.8 s in a traced README run less update_poses' 1.2 s).
@@ -151,8 +151,8 @@ def _cache_index(disp) -> list[tuple]:
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
     (System.kernels), Provot's pre-pass passes, the colliders' point range, mesh
-    projection, sweeps and keyframe poses, the wind's band and the FEM's elements (not the absent ones of passes the
-    scene does not use)."""
+    projection, sweeps and keyframe poses, the wind's band and the FEM's elements (not the
+    absent ones of passes the scene does not use)."""
     table = system.colliders
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
