@@ -66,6 +66,7 @@ class FemParams(NamedTuple):
     # _triangles and _hinges for these params (build_fem); None in the params they are passed
     triangles: KernelPointer | None = None
     hinges: KernelPointer | None = None
+    bands: KernelPointer | None = None  # _bands_of_parity (build_fem); None where passed
 
 
 TRIANGLE_KINDS, HINGE_KINDS, SCRATCH_ROWS = 2, 3, 18
@@ -134,9 +135,7 @@ def build_fem(nw: int, nh: int, width: float, height: float, k_stretch: float,
         tri_area=tri_area, tri_inv=tri_inv, edge_factor=edge_factor, offsets=offsets,
         scratch=np.zeros((SCRATCH_ROWS, n)),
     )
-    args = element_args(params)
-    return params._replace(triangles=KernelPointer(_triangles, args),
-                           hinges=KernelPointer(_hinges, args))
+    return _with_passes(params, present=True)
 
 
 def no_fem() -> FemParams:
@@ -147,9 +146,19 @@ def no_fem() -> FemParams:
                        k_bend=0.0, density=0.0, x_rest=np.zeros((3, 0)), tri_area=z2,
                        tri_inv=z3, edge_factor=np.zeros((3, 0)),
                        offsets=np.zeros(6, dtype=np.int64), scratch=np.zeros((SCRATCH_ROWS, 0)))
+    return _with_passes(params, present=False)
+
+
+def _with_passes(params: FemParams, present: bool) -> FemParams:
+    """`params` with the pointers to its element passes and to the parallel loop calling
+    them (absent unless `present`)."""
     args = element_args(params)
-    return params._replace(triangles=KernelPointer(_triangles, args, present=False),
-                           hinges=KernelPointer(_hinges, args, present=False))
+    triangles = KernelPointer(_triangles, args, present=present)
+    hinges = KernelPointer(_hinges, args, present=present)
+    x, elements, i = args[0], args[2], np.int64(0)
+    bands = KernelPointer(_bands_of_parity, (x, x, elements, triangles, hinges, i, i, i, x),
+                          present=present)
+    return params._replace(triangles=triangles, hinges=hinges, bands=bands)
 
 
 def element_args(params: FemParams) -> tuple:
@@ -157,7 +166,7 @@ def element_args(params: FemParams) -> tuple:
     direction and out are (3, N) float64 arrays; the params without their pointers; mode,
     lo, hi)."""
     x, i = params.x_rest, np.int64(0)
-    return x, x, params._replace(triangles=None, hinges=None), i, i, i, x
+    return x, x, params._replace(triangles=None, hinges=None, bands=None), i, i, i, x
 
 
 def lumped_masses(params: FemParams) -> np.ndarray:
@@ -616,16 +625,16 @@ def _hinge_kind(x, y, params, k, mode, lo, hi, out):
 
 
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def _bands_of_parity(x, y, params, mode, parity, bands, out):
+def _bands_of_parity(x, y, elements, triangles, hinges, mode, parity, bands, out):
     """Add the elements of bands parity, parity + 2, ... to out, in parallel: band b holds
     the elements anchored in cell rows [b * rows // bands, (b + 1) * rows // bands)
-    (rows = nh - 1). _triangles and _hinges are called through params.triangles and
-    params.hinges: linked in, they made this loop's compile the longest part of a first FEM
-    run (numba optimises a parallel loop's linked code four times), and apart they compile
-    in two processes at once (pipeline.warmup)."""
-    triangles, hinges = params.triangles, params.hinges
-    elements = FemParams(*params[:-2], None, None)
-    rows, nw = params.nh - 1, params.nw
+    (rows = nh - 1). _triangles and _hinges are called through pointers: linked in, they
+    made this loop's compile the longest part of a first FEM run (numba optimises a parallel
+    loop's linked code four times), and apart they compile in two processes at once
+    (pipeline.warmup). This loop is itself called through a pointer (FemParams.bands): each
+    kernel of the FEM linked it (forces, products, diagonal), compiling the parallel loop
+    again, about 1.1 s each."""
+    rows, nw = elements.nh - 1, elements.nw
     for b in prange(bands // 2):
         band = 2 * b + parity
         lo, hi = (band * rows // bands) * nw, ((band + 1) * rows // bands) * nw
@@ -639,8 +648,10 @@ def _element_pass(x, y, params, mode, out):
     at least two cell rows, so bands running together touch disjoint points). One parallel
     loop for every mode and both parities: each parallel loop costs seconds to compile."""
     bands = 2 * max(1, min(MAX_BANDS // 2, (params.nh - 1) // 4))
+    elements = FemParams(*params[:-3], None, None, None)
     for parity in range(2):
-        _bands_of_parity(x, y, params, mode, parity, bands, out)
+        params.bands(x, y, elements, params.triangles, params.hinges, mode, np.int64(parity),
+                     bands, out)
 
 
 # --- public kernels -------------------------------------------------------------------------

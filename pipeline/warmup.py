@@ -44,6 +44,10 @@ from .progress import bar, counter
 # old 5.0 s since their two parallel loops are one kernel, five alternating runs). They
 # split the kernels between this process and the helper (`split`) and give the estimate of
 # the first-run message.
+# The FEM's band loop since it is a pointer of its own, and the FEM's forces and filtered
+# product without it: one traced first FEM run (2026-11-27 at 03:58, a slow moment: the
+# elements 1.45x their earlier traced times; the loop 1.06 s, the forces 0.94 s, the
+# product 0.65 s), scaled by 0.6.
 # The colliders' range kernel and each kind's sweep since the sweeps are kernels of their own
 # (colliders._sweep_of): one cold run per kind, traced (2026-11-27 at 02:50: the range
 # 0.22-0.42 s, sphere 1.30 s, plane 1.34-1.57 s, box 2.06 s, mesh 2.24 s), scaled by 0.7;
@@ -70,15 +74,15 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
                    "pipeline.colliders.mesh:project": 3.2, "pipeline.colliders:_unmoved": 0.05,
                    "pipeline.forces:internal_forces": 1.1,
                    "pipeline.forces:_direction_forces": 0.55, "pipeline.forces:_gather": 0.55,
-                   "pipeline.forces:fem_internal_forces": 1.5,
+                   "pipeline.forces:fem_internal_forces": 0.6,
                    "pipeline.self_collision:self_collide": 3.1,
                    "pipeline.constraints:limit_stretch": 1.4,
                    "pipeline.constraints:_flag_long": 0.4, "pipeline.constraints:_pack_mask": 0.25,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.45,
                    "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
                    "pipeline.wind:_band": 3.3, "pipeline.fem:_triangles": 3.7,
-                   "pipeline.fem:_hinges": 4.0,
-                   "pipeline.fem:fem_filtered_jacobian_product": 1.5,
+                   "pipeline.fem:_hinges": 4.0, "pipeline.fem:_bands_of_parity": 0.7,
+                   "pipeline.fem:fem_filtered_jacobian_product": 0.4,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
                    "pipeline.forces:spring_prepare": 1.9, "pipeline.forces:spring_product": 3.0,
                    "pipeline.forces:spring_diagonal": 0.25, "pipeline.forces:fem_prepare": 0.4,
@@ -160,7 +164,7 @@ def kernel_pointers(system) -> list:
                 table.box, table.mesh_sweep, table.poses]
     if system.wind is not None:
         pointers.append(system.wind.band)
-    pointers += [system.fem.triangles, system.fem.hinges]  # absent in a classic System
+    pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]  # absent: classic
     return [p for p in pointers if p is not None and p.present]
 
 

@@ -74,7 +74,8 @@ MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces
            "pipeline.forces:_gather", "pipeline.constraints:limit_stretch",
            "pipeline.constraints:_flag_long", "pipeline.constraints:_pack_mask"],
           ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
-           "pipeline.fem:_hinges", "pipeline.fem:fem_filtered_jacobian_product"]]
+           "pipeline.fem:_hinges", "pipeline.fem:_bands_of_parity",
+           "pipeline.fem:fem_filtered_jacobian_product"]]
 SWEEPS = ["pipeline.colliders:sweep_sphere", "pipeline.colliders:sweep_plane",
           "pipeline.colliders:sweep_box"]
 MESH = ["pipeline.colliders.mesh:project", "pipeline.colliders:sweep_mesh"]
