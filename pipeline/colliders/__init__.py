@@ -260,19 +260,11 @@ def _sweep_of(project, name: str):
                 no_cpython_wrapper=True)(function)
 
 
-@njit(nogil=True, inline="always")
-def _sphere(params, c, data, mesh_project, x, y, z, lx, ly, lz):
-    return sphere.project(params, c, data, x, y, z, lx, ly, lz)
-
-
-@njit(nogil=True, inline="always")
-def _plane(params, c, data, mesh_project, x, y, z, lx, ly, lz):
-    return plane.project(params, c, data, x, y, z, lx, ly, lz)
-
-
-@njit(nogil=True, inline="always")
-def _box(params, c, data, mesh_project, x, y, z, lx, ly, lz):
-    return box.project(params, c, data, x, y, z, lx, ly, lz)
+def _taking_pointer(project):
+    """`project` (a kind's) taking the mesh's pointer too, as every sweep passes it."""
+    return njit(nogil=True, inline="always")(
+        lambda params, c, data, mesh_project, x, y, z, lx, ly, lz:
+        project(params, c, data, x, y, z, lx, ly, lz))
 
 
 @njit(nogil=True, inline="always")
@@ -283,9 +275,9 @@ def _mesh(params, c, data, mesh_project, x, y, z, lx, ly, lz):
 
 
 # by KIND (sphere 0, plane 1, box 2, mesh 3)
-sweep_sphere = _sweep_of(_sphere, "sweep_sphere")
-sweep_plane = _sweep_of(_plane, "sweep_plane")
-sweep_box = _sweep_of(_box, "sweep_box")
+sweep_sphere = _sweep_of(_taking_pointer(sphere.project), "sweep_sphere")
+sweep_plane = _sweep_of(_taking_pointer(plane.project), "sweep_plane")
+sweep_box = _sweep_of(_taking_pointer(box.project), "sweep_box")
 sweep_mesh = _sweep_of(_mesh, "sweep_mesh")
 _SWEEPS = (sweep_sphere, sweep_plane, sweep_box, sweep_mesh)
 _SWEEP_FIELDS = ("sphere", "plane", "box", "mesh_sweep")  # ColliderTable's, by KIND
