@@ -200,25 +200,33 @@ def test_prepare_comes_before_the_stability_limit(monkeypatch):
     assert calls[0][0] is sim.model and calls[0][1] is sim.system
 
 
-def _best_splits(linked, free, render, step, rng) -> float:
-    """The best estimate of every way of sharing the `free` jobs (`linked` stay here):
-    all 2^k ways' sums at once (numpy), each way's estimate checked against
+def _here_sums(free) -> np.ndarray:
+    """The compile seconds each way of sharing the `free` jobs keeps here, for all 2^k ways
+    (way w keeps job i here if its bit i is set), by doubling: the ways without job i, then
+    the same ways with it."""
+    sums = np.zeros(1)
+    for job in free:
+        sums = np.concatenate([sums, sums + warmup.COMPILE_SECONDS[job.name]])
+    return sums
+
+
+def _best_splits(linked, free, here_sums, render, step, rng) -> float:
+    """The best estimate of every way of sharing the `free` jobs (`linked` stay here), from
+    their sums here (`_here_sums`), each way's estimate checked against
     warmup.estimate_seconds where k <= 4, else on the best way and four random ones."""
-    seconds = np.array([warmup.COMPILE_SECONDS[j.name] for j in free])
-    sides = np.arange(2 ** len(free))
-    here = (sides[:, None] >> np.arange(len(free))) & 1  # way w puts job i here if set
-    mine = sum(warmup.COMPILE_SECONDS[j.name] for j in linked) + here @ seconds
-    theirs = seconds.sum() - here @ seconds
+    total = sum(warmup.COMPILE_SECONDS[j.name] for j in free)
+    mine = sum(warmup.COMPILE_SECONDS[j.name] for j in linked) + here_sums
+    theirs = total - here_sums
     rendering = warmup.RENDER_SECONDS if render else 0.0
     ways = warmup.CONTENTION * np.maximum(mine + step,
                                           warmup.HELPER_START + theirs + rendering)
-    checked = (sides if len(free) <= 4 else
-               [int(np.argmin(ways))] + [rng.randrange(len(sides)) for _ in range(4)])
+    checked = (range(len(ways)) if len(free) <= 4 else
+               [int(np.argmin(ways))] + [rng.randrange(len(ways)) for _ in range(4)])
     for side in checked:
         estimate = warmup.estimate_seconds(
             linked + [j for k, j in enumerate(free) if side >> k & 1],
             [j for k, j in enumerate(free) if not side >> k & 1], render, step, True)
-        assert estimate == pytest.approx(ways[side], abs=1e-9)
+        assert abs(estimate - ways[side]) <= 1e-9, (estimate, ways[side])
     return float(ways.min())
 
 
@@ -233,6 +241,7 @@ def test_split_balances_the_two_processes():
             jobs = _jobs(part)
             free = [j for j in jobs if not j.linked]
             linked = [j for j in jobs if j.linked]
+            here_sums = _here_sums(free)
             for render in (False, True):
                 for step in (0.0, min(warmup.STEP_SECONDS.values()),
                              max(warmup.STEP_SECONDS.values())):
@@ -240,7 +249,7 @@ def test_split_balances_the_two_processes():
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)
                     alone = warmup.estimate_seconds(jobs, [], render, step, False)
-                    best = _best_splits(linked, free, render, step, checks)
+                    best = _best_splits(linked, free, here_sums, render, step, checks)
                     chosen = warmup.estimate_seconds(here, helper, render, step, two)
                     # the helper only when it is faster than one process
                     assert chosen <= alone and (two or not helper)
