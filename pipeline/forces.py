@@ -304,37 +304,57 @@ def spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha):
                 alpha[d, p] = k * max(0.0, 1.0 - rest[d, p] / length)
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out):
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+def _jacobian_pass(y, offsets, stiffness, unit, alpha, buffer, d, lo, hi):
+    """buffer[d, :, p] = K_s (y_q - y_p) of the spring s = (d, p) for p in [lo, hi), at the
+    point of `spring_jacobian` (0 where none): the product's first pass, as
+    _direction_forces is the forces' (slices indexed from 0, no branch: vectorised)."""
+    k, off = stiffness[d], offsets[d]
+    start = min(max(lo, -off), hi)  # below, alpha is -1: no neighbour p + off
+    buffer[d, :, lo:start] = 0.0
+    a_d = alpha[d, start:hi]
+    ux, uy, uz = unit[d, 0, start:hi], unit[d, 1, start:hi], unit[d, 2, start:hi]
+    ax, ay, az = y[0, start:hi], y[1, start:hi], y[2, start:hi]
+    bx, by, bz = y[0, start + off:hi + off], y[1, start + off:hi + off], y[2, start + off:hi + off]
+    fx, fy, fz = buffer[d, 0, start:hi], buffer[d, 1, start:hi], buffer[d, 2, start:hi]
+    for i in range(hi - start):
+        a = a_d[i]
+        rx = bx[i] - ax[i]
+        ry = by[i] - ay[i]
+        rz = bz[i] - az[i]
+        along = ux[i] * rx + uy[i] * ry + uz[i] * rz
+        fx[i] = 0.0 if a < 0.0 else (k - a) * along * ux[i] + a * rx
+        fy[i] = 0.0 if a < 0.0 else (k - a) * along * uy[i] + a * ry
+        fz[i] = 0.0 if a < 0.0 else (k - a) * along * uz[i] + a * rz
+
+
+class ProductPasses(NamedTuple):
+    """The springs' Jacobian product's two passes, called through pointers from its parallel
+    loops (as SpringKernels are from spring_forces'): `spread` (_jacobian_pass), `gather`
+    (the forces' own _gather, with no mass and no gravity: zero_mass (N,), zero_gravity
+    (3,)). Absent, with arrays of the same types, for the FEM."""
+
+    spread: KernelPointer
+    gather: KernelPointer
+    zero_mass: np.ndarray
+    zero_gravity: np.ndarray
+
+
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+def spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out, passes):
     """out = K y with K = d(spring forces)/dx at the point of `spring_jacobian` (K is
     negative semi-definite): (K y)_p = sum over springs s at p of K_s (y_other - y_p).
-    `buffer` is a (6, 3, N + pad) scratch like forces.spring_force_buffer."""
+    `buffer` is a (6, 3, N + pad) scratch like forces.spring_force_buffer; `passes` the
+    ProductPasses."""
     n = y.shape[1]
+    spread, gather, zero_mass, zero_gravity = passes
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for d in range(6):
-            k = stiffness[d]
-            off = offsets[d]
-            for p in range(lo, hi):
-                a = alpha[d, p]
-                if a < 0.0:
-                    buffer[d, 0, p] = 0.0
-                    buffer[d, 1, p] = 0.0
-                    buffer[d, 2, p] = 0.0
-                    continue
-                q = p + off
-                rx = y[0, q] - y[0, p]
-                ry = y[1, q] - y[1, p]
-                rz = y[2, q] - y[2, p]
-                ux, uy, uz = unit[d, 0, p], unit[d, 1, p], unit[d, 2, p]
-                along = ux * rx + uy * ry + uz * rz
-                buffer[d, 0, p] = (k - a) * along * ux + a * rx
-                buffer[d, 1, p] = (k - a) * along * uy + a * ry
-                buffer[d, 2, p] = (k - a) * along * uz + a * rz
-    no_mass, no_gravity = np.zeros(n), np.zeros(3)  # the gather starts from zero
+            spread(y, offsets, stiffness, unit, alpha, buffer, d, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        _gather(buffer, offsets, order, no_mass, no_gravity, out, lo, hi)
+        gather(buffer, offsets, order, zero_mass, zero_gravity, out, lo, hi)
 
 
 @njit(cache=True, nogil=True)
@@ -365,27 +385,39 @@ def spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out):
 class JacobianKernels(NamedTuple):
     """Pointers to one model's elastic force Jacobian, for implicit Euler: `prepare` (x, fem,
     springs, unit, alpha) linearises at x, `product` (x, y, fem, springs, unit, alpha, buffer,
-    out) sets out = K y, `diagonal` (x, fem, springs, unit, alpha, out) sets out = the
-    diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner. K is negative
-    semi-definite: compressed springs, or the FEM's filtered Hessian. One signature for both
-    models (`springs`: System.springs, `fem`: System.fem; each model's kernels ignore the
-    other's), so the solve that calls them compiles once for both."""
+    out, passes) sets out = K y, `diagonal` (x, fem, springs, unit, alpha, out) sets out = the
+    diagonal of -K (>= 0) per (axis, point), for a Jacobi preconditioner; `passes` the
+    springs' product's ProductPasses (absent for the FEM). K is negative semi-definite:
+    compressed springs, or the FEM's filtered Hessian. One signature for both models
+    (`springs`: System.springs, `fem`: System.fem; each model's kernels ignore the other's),
+    so the solve that calls them compiles once for both."""
 
     prepare: KernelPointer
     product: KernelPointer
     diagonal: KernelPointer
+    passes: ProductPasses
 
 
 def jacobian_kernels(system, x, unit, alpha, buffer) -> JacobianKernels:
     """The System's model's JacobianKernels, typed for positions like x (3, N) and the
     springs' scratch (unit, alpha, buffer: see spring_jacobian)."""
     classic = system.classic
+    offsets, order, _, _, stiffness = system.springs
+    field, index = types.float64[:, ::1], types.int64
+    zero_mass, zero_gravity = np.zeros(x.shape[1]), np.zeros(3)
+    passes = ProductPasses(
+        KernelPointer(_jacobian_pass, (field, offsets, stiffness, unit, alpha, buffer, index,
+                                       index, index), present=classic),
+        KernelPointer(_gather, (buffer, offsets, order, zero_mass, zero_gravity, field, index,
+                                index), present=classic),
+        zero_mass, zero_gravity)
     fields = (system.fem, system.springs, unit, alpha)
     return JacobianKernels(
         KernelPointer(spring_prepare if classic else fem_prepare, (x, *fields)),
         KernelPointer(spring_product if classic else fem_product,
-                      (x, x, *fields, buffer, x)),
-        KernelPointer(spring_diagonal if classic else fem_diagonal, (x, *fields, x)))
+                      (x, x, *fields, buffer, x, passes)),
+        KernelPointer(spring_diagonal if classic else fem_diagonal, (x, *fields, x)),
+        passes)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
@@ -401,14 +433,14 @@ def fem_prepare(x, fem, springs, unit, alpha):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def spring_product(x, y, fem, springs, unit, alpha, buffer, out):
+def spring_product(x, y, fem, springs, unit, alpha, buffer, out, passes):
     """out = K y of the springs (spring_jacobian_product)."""
     offsets, order, _, _, stiffness = springs
-    spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out)
+    spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out, passes)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def fem_product(x, y, fem, springs, unit, alpha, buffer, out):
+def fem_product(x, y, fem, springs, unit, alpha, buffer, out, passes):
     """out = K_f y of the FEM (fem_filtered_jacobian_product)."""
     fem_filtered_jacobian_product(x, fem, y, out)
 

@@ -63,6 +63,11 @@ from .progress import bar, counter
 # Implicit Euler's Jacobian kernels (forces.JacobianKernels) and XPBD's sweeps since they are
 # pointers chosen per model: one traced cold run each (2026-11-26 at 23:55), scaled by 0.85,
 # collide_all's estimate over its time in that run.
+# The springs' Jacobian product since its first pass is a pointer (forces._jacobian_pass) and
+# it calls the forces' gather through a pointer, and implicit Euler's update since it is
+# serial: two cold runs alternately with the tree before (2026-11-27 at 05:35: the product
+# 1.9-2.0 s and its pass 0.7-0.9 s against 4.7-5.2 s, the update 0.15-0.22 s against
+# 0.7-0.9 s), scaled by 0.6, the product's old estimate over its old time.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -84,13 +89,14 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
                    "pipeline.fem:_hinges": 4.0, "pipeline.fem:_bands_of_parity": 0.7,
                    "pipeline.fem:fem_filtered_jacobian_product": 0.4,
                    "pipeline.integrators.implicit_euler:solve_step": 3.6,
-                   "pipeline.forces:spring_prepare": 1.9, "pipeline.forces:spring_product": 3.0,
+                   "pipeline.forces:spring_prepare": 1.9, "pipeline.forces:spring_product": 1.2,
+                   "pipeline.forces:_jacobian_pass": 0.45,
                    "pipeline.forces:spring_diagonal": 0.25, "pipeline.forces:fem_prepare": 0.4,
                    "pipeline.forces:fem_product": 1.0, "pipeline.forces:fem_diagonal": 0.5,
                    "pipeline.integrators.xpbd:solve_springs": 0.85,
                    "pipeline.integrators.xpbd:solve_fem": 2.7,
                    "pipeline.integrators.verlet:_update_all": 0.95,
-                   "pipeline.integrators.implicit_euler:_update": 0.4,
+                   "pipeline.integrators.implicit_euler:_update": 0.1,
                    "pipeline.integrators.euler:euler_update": 0.75,
                    "pipeline.integrators.rk4:_stage": 0.65, "pipeline.integrators.rk4:_finish": 0.4}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
@@ -188,18 +194,30 @@ def sim_jobs(system) -> list[Job]:
 
 def integrator_jobs(integrator: str, system) -> tuple[Job, list[Job]]:
     """The stepping kernel of `integrator` for `system`, typed as its State calls it, and
-    the kernels its State holds pointers to (implicit Euler's solve and Jacobian product)."""
-    from shading.jit import KernelPointer
-
+    the kernels its State holds pointers to (implicit Euler's solve and Jacobian product),
+    those of sim_jobs aside."""
     from .integrators import integrator_module
 
     kernel = stepping_kernel(integrator)
     state = integrator_module(integrator).State(system)
-    pointers = [p for value in vars(state).values()  # a pointer, or a NamedTuple of them
-                for p in (value if isinstance(value, tuple) else (value,))
-                if isinstance(p, KernelPointer)]
+    shared = {(p.dispatcher, p.argtypes) for p in kernel_pointers(system)}  # sim_jobs'
+    jobs = {(p.dispatcher, p.argtypes): Job.of(p.dispatcher, p.argtypes)
+            for p in _pointers_in(list(vars(state).values())) if p.present}
     return (Job.of(kernel, state.arguments(system, 0, 0)),
-            [Job.of(p.dispatcher, p.argtypes) for p in pointers])
+            [job for key, job in jobs.items() if key not in shared])
+
+
+def _pointers_in(values: list) -> list:
+    """The KernelPointers among `values` and in the (nested) NamedTuples among them."""
+    from shading.jit import KernelPointer
+
+    found = []
+    for value in values:
+        if isinstance(value, KernelPointer):
+            found.append(value)
+        elif isinstance(value, tuple):
+            found += _pointers_in(list(value))
+    return found
 
 
 def split(jobs: list[Job], render: bool, step: float) -> tuple[list[Job], list[Job], bool]:

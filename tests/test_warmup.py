@@ -90,17 +90,22 @@ WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
             "pipeline.integrators.implicit_euler:_update"]
-# (the kernels the States point to, with the classic model and with the FEM)
-INTEGRATORS = [([], []),
-               (IMPLICIT + ["pipeline.forces:spring_prepare", "pipeline.forces:spring_product",
-                            "pipeline.forces:spring_diagonal"],
-                IMPLICIT + ["pipeline.forces:fem_prepare", "pipeline.forces:fem_product",
-                            "pipeline.forces:fem_diagonal"]),
-               (["pipeline.integrators.verlet:_update_all"],) * 2,
-               (["pipeline.integrators.euler:euler_update"],) * 2,
-               (["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"],) * 2,
-               (["pipeline.integrators.xpbd:solve_springs"],
-                ["pipeline.integrators.xpbd:solve_fem"])]
+# the kernels each integrator's State points to, with the classic model and with the FEM
+STATE_KERNELS = {
+    "implicit-euler": (IMPLICIT + ["pipeline.forces:spring_prepare",
+                                   "pipeline.forces:spring_product",
+                                   "pipeline.forces:_jacobian_pass",
+                                   "pipeline.forces:spring_diagonal"],
+                       IMPLICIT + ["pipeline.forces:fem_prepare", "pipeline.forces:fem_product",
+                                   "pipeline.forces:fem_diagonal"]),
+    "verlet": (["pipeline.integrators.verlet:_update_all"],) * 2,
+    "euler": (["pipeline.integrators.euler:euler_update"],) * 2,
+    "symplectic-euler": (["pipeline.integrators.euler:euler_update"],) * 2,
+    "rk4": (["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"],) * 2,
+    "xpbd": (["pipeline.integrators.xpbd:solve_springs"], ["pipeline.integrators.xpbd:solve_fem"])}
+# (and none: the integrator's kernels cached)
+INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
+                            if name != "symplectic-euler"]
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard",
           "pipeline.reach:reach_check"}
@@ -142,6 +147,24 @@ def test_every_job_of_a_scene_has_an_estimate():
     # the FEM's kernels, a mesh's projection, every collider kind, keyframes, wind and
     # self-collision all occur
     assert seen == set(warmup.COMPILE_SECONDS)
+
+
+def test_an_integrators_jobs_are_its_own_present_kernels():
+    """Each integrator's jobs on pinned2 with either model are exactly its kernels above: not
+    the kernels sim_jobs has already (implicit Euler's product calls the forces' gather),
+    nor the absent pointers of the other model (the springs' product passes, with the FEM)."""
+    from pipeline.scene import INTEGRATORS as NAMES, load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.system import build_system
+
+    assert set(STATE_KERNELS) == set(NAMES)
+    for k, model in enumerate(("classic", "fem")):
+        scene = load_scene(scene_path("pinned2"), overrides=[f'simulation.model="{model}"'])
+        system = build_system(scene, cloth_model(scene))
+        for name in NAMES:
+            jobs = warmup.integrator_jobs(name, system)[1]
+            assert sorted(job.name for job in jobs) == sorted(STATE_KERNELS[name][k]), (model,
+                                                                                       name)
 
 
 def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 import numpy as np
 from numba.core import types
-from shading.jit import KernelPointer, njit, prange
+from shading.jit import KernelPointer, njit
 
-from ..forces import CHUNKS, _chunk, jacobian_kernels, spring_force_buffer, total_force
+from ..forces import jacobian_kernels, spring_force_buffer, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -75,10 +75,10 @@ def _dot(a, b):
 
 @njit(cache=True, nogil=True)
 def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
-           product):
+           product, passes):
     """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x, by `product`:
-    forces.JacobianKernels.product); mass_factor is 1 + h gamma."""
-    product(x, y, fem, springs, unit, alpha, buffer, out)
+    forces.JacobianKernels.product, `passes` its passes); mass_factor is 1 + h gamma."""
+    product(x, y, fem, springs, unit, alpha, buffer, out, passes)
     for ax in range(3):
         for p in range(y.shape[1]):
             out[ax, p] = (0.0 if pinned[p] else
@@ -96,9 +96,9 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     h2 = h * h
     b, dv, r, z, d, q, diag = work[0], work[1], work[2], work[3], work[4], work[5], work[6]
     n = x.shape[1]
-    prepare, product, diagonal = jacobian
+    prepare, product, diagonal, passes = jacobian
     prepare(x, fem, springs, unit, alpha)
-    product(x, v, fem, springs, unit, alpha, buffer, q)
+    product(x, v, fem, springs, unit, alpha, buffer, q, passes)
     diagonal(x, fem, springs, unit, alpha, diag)
     mass_factor = 1.0 + h * gamma
     for ax in range(3):
@@ -117,7 +117,7 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     iterations = 0
     while iterations < CG_MAX_ITERATIONS and _dot(r, r) > target:
         _apply(x, d, q, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
-               product)
+               product, passes)
         dq = _dot(d, q)
         if not dq > 0.0:
             break
@@ -137,18 +137,17 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     return iterations
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _update(x, v, last, dv, pinned, dt, predicted):
-    n = x.shape[1]
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n)
-        for p in range(lo, hi):
-            for a in range(3):
-                last[a, p] = x[a, p]
-                if not pinned[p]:
-                    v[a, p] += dv[a, p]
-                    x[a, p] += dt * v[a, p]
-                predicted[a, p] = x[a, p]
+    """v += dv and x += dt v on the free points (last and predicted: the positions before and
+    after). Serial: once per step, a parallel loop would not pay for its compile."""
+    for p in range(x.shape[1]):
+        for a in range(3):
+            last[a, p] = x[a, p]
+            if not pinned[p]:
+                v[a, p] += dv[a, p]
+                x[a, p] += dt * v[a, p]
+            predicted[a, p] = x[a, p]
 
 
 @njit(cache=True, nogil=True)
