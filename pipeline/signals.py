@@ -21,11 +21,15 @@ it meets, and after a kernel that is often numba's unboxing for the next call. A
 signal is sent again a moment later, until it finds the main thread back in plain Python.
 So is one that lands inside `deferred()`, a step that must not be cut in half (starting
 worker processes: a worker spawned but not yet sent its task would die reading an empty
-pipe, with a traceback).
+pipe, with a traceback). And where Python itself drops the exception (the handler ran in
+a weakref callback or a `__del__`: "Exception ignored in: <function
+_get_module_lock.<locals>.cb>", the render then running to its end, seen once in the
+suite), its unraisable hook hands the signal back, to be sent again.
 """
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -73,9 +77,19 @@ def handled() -> Iterator[None]:
         fired.append(signum)
         raise Terminated(signum)
 
+    def dropped(info) -> None:
+        """sys.unraisablehook: our Terminated dropped (a weakref callback, a __del__) is
+        sent again, to be raised in code that passes it on."""
+        if isinstance(info.exc_value, Terminated) and fired:
+            signum = fired.pop()
+            threading.Timer(RESEND_SECONDS, resend, (signum,)).start()
+            return
+        unraisable(info)
+
     # A signal ignored by whoever started us (nohup: SIGHUP) stays ignored.
     previous = {sig: signal.signal(sig, handler) for sig in HANDLED
                 if signal.getsignal(sig) is not signal.SIG_IGN}
+    unraisable, sys.unraisablehook = sys.unraisablehook, dropped
     try:
         yield
     finally:
@@ -83,6 +97,7 @@ def handled() -> Iterator[None]:
             for sig, old in previous.items():
                 signal.signal(sig, old)
             previous.clear()
+        sys.unraisablehook = unraisable
 
 
 @contextmanager

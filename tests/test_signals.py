@@ -282,7 +282,7 @@ serialize.os, serialize.signal = os, signal
 exec(compile(SOURCE, serialize.__file__, "exec"), vars(serialize))
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def add_one(x):
     x[0] += 1.0
 
@@ -319,6 +319,52 @@ def test_signal_while_unboxing_a_kernel_pointer_is_deferred(tmp_path, sig):
     # the call ran whole, then the signal stopped the run in the sleep
     assert "called 2.0" in proc.stdout and "finished" not in proc.stdout, proc.stdout
     assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr
+
+
+# The signal's handler running inside a weakref callback (as it once did in importlib's
+# module-lock callback during a render): Python prints and drops an exception raised there,
+# and the run went on to its end.
+SIGNAL_IN_A_WEAKREF_CALLBACK = """
+import os, signal, sys, time, weakref
+from pipeline.signals import Terminated, exit_status, handled
+
+
+class Thing:
+    pass
+
+
+def callback(ref):
+    os.kill(os.getpid(), signal.SIGNUM)
+    for _ in range(100000):  # Python code: the handler runs here, inside the callback
+        pass
+
+
+with handled():
+    try:
+        thing = Thing()
+        ref = weakref.ref(thing, callback)
+        del thing  # the callback runs, and the handler in it
+        print("called", flush=True)
+        time.sleep(10)  # the signal, sent again, ends this at once
+        print("finished", flush=True)
+    except Terminated as exc:
+        print("stopped", exc.signum, file=sys.stderr, flush=True)
+        sys.exit(exit_status(exc))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_dropped_in_a_weakref_callback_is_sent_again(tmp_path, sig):
+    (tmp_path / "child.py").write_text(SIGNAL_IN_A_WEAKREF_CALLBACK.replace(
+        "SIGNUM", signal.Signals(sig).name))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, str(tmp_path / "child.py")], capture_output=True,
+                          text=True, env=child_env(), timeout=WAIT,
+                          preexec_fn=as_from_a_terminal())
+    assert proc.returncode == 128 + sig, proc.stderr
+    assert "called" in proc.stdout and "finished" not in proc.stdout, proc.stdout
+    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr  # nothing printed
+    assert time.monotonic() - t0 < 8
 
 
 # `render report` starting its worker pool, with a SIGTERM sent to itself just after the
