@@ -57,7 +57,7 @@ def candidate_mask(n: int, present: bool = True) -> CandidateMask:
     return CandidateMask(mask, long, flag, pack)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _flag_long(x, off, limit_sq_lo_d, long_d, lo, hi):
     """long_d[p] = spring (d, p) may be longer than its limit, for p in [lo, hi)."""
     start = min(max(lo, -off), hi)
@@ -72,7 +72,7 @@ def _flag_long(x, off, limit_sq_lo_d, long_d, lo, hi):
         out[i] = dx * dx + dy * dy + dz * dz > lim[i]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _pack_mask(long, exist_bits, mask, lo, hi):
     l0, l1, l2, l3, l4, l5 = (long[0, lo:hi], long[1, lo:hi], long[2, lo:hi], long[3, lo:hi],
                               long[4, lo:hi], long[5, lo:hi])
@@ -106,7 +106,7 @@ def _mark_after(r, p, d, offsets, exist_bits, mask):
             mask[s] |= exist_bits[s] & (np.uint8(1) << np.uint8(e))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
 

@@ -541,7 +541,7 @@ def _exact_hinges(x, y, params, k, c, start, stop, out):
 # --- one element kind over a range of anchors --------------------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _triangles(x, y, params, mode, lo, hi, out):
     """Add the triangles anchored in [lo, hi) to out: minus the gradient of E (FORCE),
     K y (PRODUCT), K_f y (FILTERED_PRODUCT) or the diagonal of -K_f (DIAGONAL)."""
@@ -586,7 +586,7 @@ def _hinge_anchors(params, k, lo, hi, n):
             min(hi, n - max(o[0], o[1], o[2], o[3])))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _hinges(x, y, params, mode, lo, hi, out):
     """Add the hinges anchored in [lo, hi) to out, as _triangles (none without bending
     stiffness, nor for PRODUCT: fem_jacobian_product adds the exact hinges itself)."""
@@ -624,7 +624,7 @@ def _hinge_kind(x, y, params, k, mode, lo, hi, out):
         _vertex_pass(params, k, s, m, HINGE_GRADIENT[j], mode == DIAGONAL, out, c[j])
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def _bands_of_parity(x, y, elements, triangles, hinges, mode, parity, bands, out):
     """Add the elements of bands parity, parity + 2, ... to out, in parallel: band b holds
     the elements anchored in cell rows [b * rows // bands, (b + 1) * rows // bands)

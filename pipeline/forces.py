@@ -59,7 +59,7 @@ def _chunk(c, n):
 # negative and emits no wraparound select per load, and with error_model="numpy" no
 # zero-division branch either, so LLVM vectorises them. Same arithmetic, same bits.
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
 def _direction_forces(x, offsets, exists, rest_lengths, stiffness, spring_force, d, lo, hi):
     """spring_force[d, :, p] = force of the spring (d, p) on p for p in [lo, hi) (0 where
     none). Takes whole arrays and d, not their rows, which the caller's parallel loop
@@ -85,7 +85,7 @@ def _direction_forces(x, offsets, exists, rest_lengths, stiffness, spring_force,
         fz[i] = (dz / length) * s if ok else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
 def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
     """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
@@ -189,7 +189,7 @@ def forces_of(x, v, t, fields, f):
 # for every System type, and no half-second entry point that unboxes the whole System).
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                     spring_force, passes, f):
     """f[:] = gravity + the springs' forces (the classic model; `fem` unused; `passes` the
@@ -199,7 +199,7 @@ def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravi
                   passes, f)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
                         spring_force, passes, f):
     """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). A kernel
@@ -304,7 +304,7 @@ def spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha):
                 alpha[d, p] = k * max(0.0, 1.0 - rest[d, p] / length)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
 def _jacobian_pass(y, offsets, stiffness, unit, alpha, buffer, d, lo, hi):
     """buffer[d, :, p] = K_s (y_q - y_p) of the spring s = (d, p) for p in [lo, hi), at the
     point of `spring_jacobian` (0 where none): the product's first pass, as
@@ -420,39 +420,39 @@ def jacobian_kernels(system, x, unit, alpha, buffer) -> JacobianKernels:
         passes)
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def spring_prepare(x, fem, springs, unit, alpha):
     """The springs' per-spring data at x (spring_jacobian)."""
     offsets, _, exists, rest, stiffness = springs
     spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha)
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def fem_prepare(x, fem, springs, unit, alpha):
     """Nothing: the FEM's products need nothing beyond x."""
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def spring_product(x, y, fem, springs, unit, alpha, buffer, out, passes):
     """out = K y of the springs (spring_jacobian_product)."""
     offsets, order, _, _, stiffness = springs
     spring_jacobian_product(y, offsets, order, stiffness, unit, alpha, buffer, out, passes)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def fem_product(x, y, fem, springs, unit, alpha, buffer, out, passes):
     """out = K_f y of the FEM (fem_filtered_jacobian_product)."""
     fem_filtered_jacobian_product(x, fem, y, out)
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def spring_diagonal(x, fem, springs, unit, alpha, out):
     """The springs' diagonal of -K (spring_jacobian_diagonal)."""
     offsets, _, _, _, stiffness = springs
     spring_jacobian_diagonal(offsets, stiffness, unit, alpha, out)
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def fem_diagonal(x, fem, springs, unit, alpha, out):
     """The FEM's diagonal of -K_f (fem_jacobian_diagonal)."""
     fem_jacobian_diagonal(x, fem, out)

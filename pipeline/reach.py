@@ -62,7 +62,7 @@ def _total(x, a):
     return total
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", pointer=True)
 def reach_check(x, reach, active, thickness):
     """Before a step's passes: re-enable what the positions x (3, N) may now reach.
     `active` (C,) uint8 is the collider table's switch per collider."""

@@ -166,7 +166,7 @@ def _squared_distances(px, py, pz, xs, lo, hi, out):
         out[i] = dx * dx + dy * dy + dz * dz
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
     """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel)."""
     bucket_of, start, members, xs, slot_of, dist_sq = (

@@ -184,8 +184,7 @@ def sim_jobs(system) -> list[Job]:
     last, f = x.copy(), np.zeros_like(x)
     linked = {"pipeline.system:motion_summary": (x, last, s.x0, s.mass, s.gravity),
               "pipeline.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass,
-                                               s.slack_speed),
-              "pipeline.reach:reach_check": (x, s.reach, s.colliders.active, s.thickness)}
+                                               s.slack_speed)}
     jobs = [Job(n, a, True) for n, a in linked.items()]
     if not s.classic:  # the stability limit's (system.stability_limit)
         jobs.append(Job("pipeline.fem:fem_filtered_jacobian_product", (s.fem.x_rest, s.fem, x, f)))

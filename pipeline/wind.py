@@ -231,7 +231,7 @@ def _gather(tri, f, lo, hi, t0, nw):
             out[j] += below[j] + below_l[j] + below_l1[j] + above[j] + above1[j] + above1_l[j]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _band(x, v, w, f, band):
     """The wind forces on the point rows of one band."""
     nw, nh, bands = w.nw, w.nh, w.point.shape[0]
@@ -264,7 +264,7 @@ def _all_bands(x, v, band, w, f):
         band(x, v, w, f, np.int64(b))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, pointer=True)
 def add_wind_force(x, v, t, w, f):
     """f += the aerodynamic force at positions x, velocities v (3, N), time t (s), for a
     wind that is `on`. The stepping kernels call it through System.kernels.wind, and it

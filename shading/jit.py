@@ -46,11 +46,17 @@ STAGE = dict(cache=True, nogil=True, error_model="numpy",
              fastmath={"nsz", "arcp", "contract", "afn", "reassoc"})
 
 
-def njit(*args, **options):
+def njit(*args, pointer: bool = False, **options):
     """numba.njit; `parallel=True` converts only explicit `prange` loops. Every parallel
     kernel here is a prange over chunks of scalar loops, so numba's other conversions
     (array expressions, reductions, fusion of loops) find nothing to do and only cost
-    compile time (a first FEM element pass compiles about 1 s sooner without them)."""
+    compile time (a first FEM element pass compiles about 1 s sooner without them).
+
+    `pointer=True` for a kernel other kernels call through a KernelPointer: only those get
+    numba's C wrapper (numba writes one for every kernel, so that any could be called through
+    its address; a stepping kernel's, flattening the System into C arguments, took 0.5-0.9 s
+    of its 3.5-3.9 s compile)."""
+    options.setdefault("no_cfunc_wrapper", not pointer)
     if options.get("parallel") is True:
         options["parallel"] = dict(prange=True, comprehension=False, reduction=False,
                                    inplace_binop=False, setitem=False, numpy=False,
@@ -91,6 +97,9 @@ class KernelPointer(WrapperAddressProtocol):
 
     def __init__(self, dispatcher, args: tuple, returns: types.Type = types.none,
                  present: bool = True):
+        if dispatcher.targetoptions.get("no_cfunc_wrapper"):
+            raise TypeError(f"{dispatcher.py_func.__qualname__} has no C wrapper to be called "
+                            "through a pointer: declare it njit(..., pointer=True)")
         self.dispatcher = dispatcher
         self.argtypes = argument_types(dispatcher, args)
         self.returns = returns

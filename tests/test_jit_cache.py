@@ -131,7 +131,7 @@ import numpy as np
 from shading.jit import KernelPointer, njit, prange
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def add_range(x, k, lo, hi):
     for i in range(lo, hi):
         x[i] += k * i
@@ -188,7 +188,7 @@ def test_an_absent_kernel_pointer_has_the_present_ones_type_and_is_never_compile
     import numpy as np
     from shading.jit import KernelPointer, njit
 
-    add_one = njit(nogil=True, no_cpython_wrapper=True)(_add_one)
+    add_one = njit(nogil=True, no_cpython_wrapper=True, pointer=True)(_add_one)
     call_if = njit(_call_if)
     x = np.zeros(2)
     absent = KernelPointer(add_one, (x,), present=False)
@@ -200,6 +200,24 @@ def test_an_absent_kernel_pointer_has_the_present_ones_type_and_is_never_compile
     assert present.numba_type == absent.numba_type
     assert call_if(True, present, x) == 1.0 and x[0] == 1.0
     assert len(call_if.overloads) == 1  # one compile served both
+
+
+def test_only_pointer_kernels_get_a_c_wrapper():
+    """njit writes numba's C wrapper (the address a KernelPointer calls) only for the kernels
+    declared pointer=True: the others compile without it, and a KernelPointer to one is
+    refused with a message naming it."""
+    import numpy as np
+    from shading.jit import KernelPointer, njit
+
+    x = np.zeros(2)
+    plain = njit(nogil=True)(_add_one)
+    with pytest.raises(TypeError, match=r"_add_one has no C wrapper.*pointer=True"):
+        KernelPointer(plain, (x,))
+    plain(x)
+    assert "cfunc." not in next(iter(plain.overloads.values())).library.get_llvm_str()
+    pointed = njit(nogil=True, pointer=True)(_add_one)
+    assert njit(_call_if)(True, KernelPointer(pointed, (x,)), x) == 2.0
+    assert "cfunc." in next(iter(pointed.overloads.values())).library.get_llvm_str()
 
 
 _LOAD_THEN_COMPILE = """

@@ -107,8 +107,7 @@ STATE_KERNELS = {
 INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
                             if name != "symplectic-euler"]
 # called by the stepping kernel directly, not through a pointer
-LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard",
-          "pipeline.reach:reach_check"}
+LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard"}
 
 
 def _scenes(tables=TABLES) -> list[list[str]]:

@@ -129,7 +129,7 @@ def pack_colliders(colliders: Sequence[object]) -> ColliderTable:
 POINT = types.UniTuple(types.float64, 3)  # what a projection returns
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def _unmoved(params, c, data, x, y, z, lx, ly, lz):
     """The mesh projection's stand-in in a table without a mesh collider (never called)."""
     return x, y, z
@@ -257,7 +257,7 @@ def _sweep_of(project, name: str):
     function.__qualname__ = name  # its own cache file and warm-up job
     function.__doc__ = _sweep.__doc__
     return njit(cache=True, nogil=True, error_model="numpy", _nrt=False,
-                no_cpython_wrapper=True)(function)
+                no_cpython_wrapper=True, pointer=True)(function)
 
 
 def _taking_pointer(project):
@@ -283,7 +283,7 @@ _SWEEPS = (sweep_sphere, sweep_plane, sweep_box, sweep_mesh)
 _SWEEP_FIELDS = ("sphere", "plane", "box", "mesh_sweep")  # ColliderTable's, by KIND
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def update_poses(keys, key_count, pose, t_start, t_end):
     """Poses of the keyframed colliders at the start and the end of a step (a ColliderTable's
     fields). Called through a pointer (ColliderTable.poses), present only in a scene with
@@ -295,7 +295,7 @@ def update_poses(keys, key_count, pose, t_start, t_end):
             pose_at(keys[c], n, t_end, pose[c, 1])
 
 
-@njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, _nrt=False, no_cpython_wrapper=True, pointer=True)
 def _collide_range(x, last, pinned, table, lo, hi):
     """Every active collider, in order, on the free points [lo, hi), with the poses of
     update_poses: each through its kind's sweep (each point meets the colliders in order
@@ -329,7 +329,7 @@ def _collide_points(x, last, pinned, table):
         collide(x, last, pinned, points, (c * n) // CHUNKS, ((c + 1) * n) // CHUNKS)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", pointer=True)
 def collide_all(x, last, pinned, table, t_start, t_end):
     """Apply the colliders to every free point of x (3, N) for the step from t_start (when
     the points were at `last`) to t_end."""

@@ -163,7 +163,7 @@ def _move(params, c, x, y, z, lx, ly, lz):
     return math.sqrt(mx * mx + my * my + mz * mz) + params[c, _SLACK]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, pointer=True)
 def project(params, c, data, x, y, z, lx, ly, lz):
     """The point now at (x, y, z), at (lx, ly, lz) at the start of the step, corrected by
     mesh collider c (rest frame). Written with few branches, no loop and no merge after a

@@ -57,7 +57,7 @@ class State(VelocityState):
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predicted):
     n = x.shape[1]
     for c in prange(CHUNKS):

@@ -85,7 +85,7 @@ def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_fact
                           mass_factor * mass[p] * y[ax, p] - h2 * out[ax, p])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, work, gamma,
                jacobian):
     """dv of one linearised backward-Euler step of length h (in work[1]), `force` the forces
@@ -137,7 +137,7 @@ def solve_step(x, v, force, h, pinned, mass, fem, springs, unit, alpha, buffer, 
     return iterations
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def _update(x, v, last, dv, pinned, dt, predicted):
     """v += dv and x += dt v on the free points (last and predicted: the positions before and
     after). Serial: once per step, a parallel loop would not pay for its compile."""

@@ -47,7 +47,7 @@ class State(VelocityState):
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, pinned, mass, gamma, weight, step):
     """Add weight * (stage velocity, stage acceleration) to the sums and, if step > 0, set
     the next stage to (x, v) + step * (that velocity, that acceleration)."""
@@ -67,7 +67,7 @@ def _stage(x, v, stage_x, stage_v, sum_x, sum_v, force, pinned, mass, gamma, wei
                     stage_v[a, p] = v[a, p] + step * ka
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def _finish(x, v, last, sum_x, sum_v, pinned, dt, predicted):
     n = x.shape[1]
     for c in prange(CHUNKS):

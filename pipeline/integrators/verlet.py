@@ -58,7 +58,7 @@ def _update(x, last, force, pinned, mass, keep, dt2, lo, hi):
             la[i] = xi if free else la[i]
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def _update_all(x, last, force, pinned, mass, keep, dt2):
     n = x.shape[1]
     for c in prange(CHUNKS):

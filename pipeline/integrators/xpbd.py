@@ -58,7 +58,7 @@ class State(VelocityState):
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def solve_springs(x, lam, pinned, mass, springs, fem, dt2, iterations):
     """Gauss-Seidel sweeps over the springs' distance constraints, in SPEC order (`fem`
     unused: the signature of solve_fem)."""
@@ -196,7 +196,7 @@ def _bend(x, lam, pinned, mass, fem, k, p, dt2):
     _move(x, pd, wd * dl, gd)
 
 
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def solve_fem(x, lam, pinned, mass, springs, fem, dt2, iterations):
     """Gauss-Seidel sweeps over the FEM constraints: triangles, then hinges, anchor order
     (`springs` unused: the signature of solve_springs)."""
