@@ -107,9 +107,12 @@ RENDER_SECONDS = 9.5
 # update went through a pointer too (State.update, rk4's State.stage and .finish: jobs of
 # their own); since, alternately with the tree before, Verlet's 2.45-3.20 s against
 # 4.02-4.65 s, implicit Euler's 3.30-3.97 s against 4.73-5.19 s, rk4's 3.25-3.39 s against
-# 5.91-6.27 s, Euler's 3.88-4.95 s against 4.79-5.42 s, each scaled by 3.4 / the old time
-STEP_SECONDS = {"verlet": 2.2, "euler": 2.9, "symplectic-euler": 2.9, "rk4": 1.9,
-                "implicit-euler": 2.5, "xpbd": 3.4}
+# 5.91-6.27 s, Euler's 3.88-4.95 s against 4.79-5.42 s, each scaled by 3.4 / the old time;
+# since reach_check is a pointer and the stepping kernels have no C wrapper, scaled by 0.87
+# (Verlet's on the sphere scene, six rounds alternately with b40265a, 2026-11-27 at 06:05:
+# 2.79-3.83 s of CPU against 3.24-4.12 s, every round lower, 3.31 against 3.81 s on average)
+STEP_SECONDS = {"verlet": 1.9, "euler": 2.5, "symplectic-euler": 2.5, "rk4": 1.65,
+                "implicit-euler": 2.2, "xpbd": 3.0}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 
