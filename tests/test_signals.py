@@ -295,12 +295,21 @@ def call(kernel, x):
 x = np.zeros(1)
 pointer = KernelPointer(add_one, (x,))
 call(pointer, x)  # compiled; numba looks _numba_unpickle up on its first use: ours
+
+
+def act():
+    serialize.SENT.append(False)
+    call(pointer, x)
+    return x[0]
+"""
+
+# The end of a child that defines act() (what runs when the signal comes, returning what
+# to print) and waits for the signal after it.
+UNTIL_THE_SIGNAL = """
 with handled():
     try:
-        serialize.SENT.append(False)
-        call(pointer, x)
-        print("called", x[0], flush=True)
-        time.sleep(10)  # the deferred signal ends this at once
+        print("called", act(), flush=True)
+        time.sleep(10)  # the signal, deferred or sent again, ends this at once
         print("finished", flush=True)
     except Terminated as exc:
         print("stopped", exc.signum, file=sys.stderr, flush=True)
@@ -308,17 +317,27 @@ with handled():
 """
 
 
+def _stopped_child(tmp_path, source: str, sig, **env: str) -> str:
+    """Run `source` + UNTIL_THE_SIGNAL (SIGNUM: `sig`); it must stop by the signal, within 8 s,
+    printing nothing else; returns its stdout."""
+    (tmp_path / "child.py").write_text((source + UNTIL_THE_SIGNAL).replace(
+        "SIGNUM", signal.Signals(sig).name))
+    t0 = time.monotonic()
+    proc = subprocess.run([sys.executable, str(tmp_path / "child.py")], capture_output=True,
+                          text=True, env=child_env(**env), timeout=WAIT,
+                          preexec_fn=as_from_a_terminal())
+    assert proc.returncode == 128 + sig, proc.stderr
+    assert "called" in proc.stdout and "finished" not in proc.stdout, proc.stdout
+    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr
+    assert time.monotonic() - t0 < 8
+    return proc.stdout
+
+
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP])
 def test_signal_while_unboxing_a_kernel_pointer_is_deferred(tmp_path, sig):
-    (tmp_path / "child.py").write_text(SIGNAL_WHILE_UNBOXING_A_POINTER.replace(
-        "SIGNUM", signal.Signals(sig).name))
-    proc = subprocess.run([sys.executable, str(tmp_path / "child.py")], capture_output=True,
-                          text=True, env=child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache")),
-                          timeout=WAIT, preexec_fn=as_from_a_terminal())
-    assert proc.returncode == 128 + sig, proc.stderr
-    # the call ran whole, then the signal stopped the run in the sleep
-    assert "called 2.0" in proc.stdout and "finished" not in proc.stdout, proc.stdout
-    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr
+    stdout = _stopped_child(tmp_path, SIGNAL_WHILE_UNBOXING_A_POINTER, sig,
+                            NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    assert "called 2.0" in stdout  # the call ran whole, then the signal stopped the sleep
 
 
 # The signal's handler running inside a weakref callback (as it once did in importlib's
@@ -339,32 +358,17 @@ def callback(ref):
         pass
 
 
-with handled():
-    try:
-        thing = Thing()
-        ref = weakref.ref(thing, callback)
-        del thing  # the callback runs, and the handler in it
-        print("called", flush=True)
-        time.sleep(10)  # the signal, sent again, ends this at once
-        print("finished", flush=True)
-    except Terminated as exc:
-        print("stopped", exc.signum, file=sys.stderr, flush=True)
-        sys.exit(exit_status(exc))
+def act():
+    thing = Thing()
+    ref = weakref.ref(thing, callback)
+    del thing  # the callback runs, and the handler in it
+    return ""
 """
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_dropped_in_a_weakref_callback_is_sent_again(tmp_path, sig):
-    (tmp_path / "child.py").write_text(SIGNAL_IN_A_WEAKREF_CALLBACK.replace(
-        "SIGNUM", signal.Signals(sig).name))
-    t0 = time.monotonic()
-    proc = subprocess.run([sys.executable, str(tmp_path / "child.py")], capture_output=True,
-                          text=True, env=child_env(), timeout=WAIT,
-                          preexec_fn=as_from_a_terminal())
-    assert proc.returncode == 128 + sig, proc.stderr
-    assert "called" in proc.stdout and "finished" not in proc.stdout, proc.stdout
-    assert proc.stderr.strip() == f"stopped {int(sig)}", proc.stderr  # nothing printed
-    assert time.monotonic() - t0 < 8
+    _stopped_child(tmp_path, SIGNAL_IN_A_WEAKREF_CALLBACK, sig)
 
 
 # `render report` starting its worker pool, with a SIGTERM sent to itself just after the
