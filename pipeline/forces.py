@@ -59,7 +59,8 @@ def _chunk(c, n):
 # negative and emits no wraparound select per load, and with error_model="numpy" no
 # zero-division branch either, so LLVM vectorises them. Same arithmetic, same bits.
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
 def _direction_forces(x, offsets, exists, rest_lengths, stiffness, spring_force, d, lo, hi):
     """spring_force[d, :, p] = force of the spring (d, p) on p for p in [lo, hi) (0 where
     none). Takes whole arrays and d, not their rows, which the caller's parallel loop
@@ -85,7 +86,8 @@ def _direction_forces(x, offsets, exists, rest_lengths, stiffness, spring_force,
         fz[i] = (dz / length) * s if ok else 0.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
 def _gather(spring_force, offsets, order, mass, gravity, f, lo, hi):
     """f[:, lo:hi] = mass * gravity + own springs - springs of later points ending there, in
     the course code's order of accumulation."""
@@ -304,7 +306,8 @@ def spring_jacobian(x, offsets, exists, rest, stiffness, unit, alpha):
                 alpha[d, p] = k * max(0.0, 1.0 - rest[d, p] / length)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True, pointer=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
 def _jacobian_pass(y, offsets, stiffness, unit, alpha, buffer, d, lo, hi):
     """buffer[d, :, p] = K_s (y_q - y_p) of the spring s = (d, p) for p in [lo, hi), at the
     point of `spring_jacobian` (0 where none): the product's first pass, as

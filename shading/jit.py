@@ -84,7 +84,8 @@ class KernelPointer(WrapperAddressProtocol):
     numba links the code of every kernel a kernel calls into the caller's module and
     optimises and generates that code again there (and a parallel loop does so four
     times); a kernel called through a pointer is compiled once, on its own, and its callers
-    stay small. The kernel must not raise (numba's C wrapper cannot pass an exception on).
+    stay small. The kernel must be declared `njit(..., pointer=True)` (it needs numba's C
+    wrapper) and must not raise (that wrapper cannot pass an exception on).
     Pickles as the dispatcher, the argument types and the return type (`returns`: none
     unless given); the address is the kernel's for those types in this process (compiled,
     or loaded from the cache, on first use).
