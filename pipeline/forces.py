@@ -405,14 +405,13 @@ def jacobian_kernels(system, x, unit, alpha, buffer) -> JacobianKernels:
     """The System's model's JacobianKernels, typed for positions like x (3, N) and the
     springs' scratch (unit, alpha, buffer: see spring_jacobian)."""
     classic = system.classic
-    offsets, order, _, _, stiffness = system.springs
+    offsets, _, _, _, stiffness = system.springs
     field, index = types.float64[:, ::1], types.int64
     zero_mass, zero_gravity = np.zeros(x.shape[1]), np.zeros(3)
     passes = ProductPasses(
         KernelPointer(_jacobian_pass, (field, offsets, stiffness, unit, alpha, buffer, index,
                                        index, index), present=classic),
-        KernelPointer(_gather, (buffer, offsets, order, zero_mass, zero_gravity, field, index,
-                                index), present=classic),
+        system.kernels.springs.gather,  # the forces' own (absent with the FEM)
         zero_mass, zero_gravity)
     fields = (system.fem, system.springs, unit, alpha)
     return JacobianKernels(

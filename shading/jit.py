@@ -54,8 +54,8 @@ def njit(*args, pointer: bool = False, **options):
 
     `pointer=True` for a kernel other kernels call through a KernelPointer: only those get
     numba's C wrapper (numba writes one for every kernel, so that any could be called through
-    its address; a stepping kernel's, flattening the System into C arguments, took 0.5-0.9 s
-    of its 3.5-3.9 s compile)."""
+    its address; a stepping kernel's flattens the System into C arguments: 632 of the 6272
+    lines of IR of Verlet's on the sphere scene)."""
     options.setdefault("no_cfunc_wrapper", not pointer)
     if options.get("parallel") is True:
         options["parallel"] = dict(prange=True, comprehension=False, reduction=False,
