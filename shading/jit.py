@@ -1,6 +1,7 @@
 """numba's `njit` and `prange` for every kernel of clothpipe, with numba's on-disk cache
-made safe for processes that compile at the same time and quicker to load from, and numba's
-inliner rid of a quadratic copy (`_InlinerCopies`).
+made safe for processes that compile at the same time and quicker to load from, numba's
+inliner rid of a quadratic copy (`_InlinerCopies`), and its first compile in a process rid of
+importing scipy.linalg (`_BlasCheckWhenUsed`).
 
 numba's cache (`IndexDataCacheFile.save`) reads a function's index, picks a data-file name
 not yet in it, writes the index, then the data. Two processes that compile different
@@ -16,8 +17,10 @@ from __future__ import annotations
 import contextlib
 import copy
 import functools
+import importlib.abc
 import itertools
 import os
+import sys
 
 import numba
 from numba import prange
@@ -180,6 +183,43 @@ def _load_overload(self, sig, target_context):
 
 
 caching.Cache.load_overload = _load_overload
+
+
+class _BlasCheckWhenUsed(importlib.abc.MetaPathFinder):
+    """Skips the BLAS check numba.np.arraymath makes when it is imported (numba's first
+    compile in a process imports it): that check imports scipy.linalg, 0.3 s on this machine
+    (scipy's array-API layer imports numpy.f2py, which imports charset_normalizer), in every
+    process that compiles. No kernel here calls BLAS, and scipy, a dependency, provides it;
+    a kernel that does (np.dot) still runs numba's check, scipy.linalg and all, as it is
+    typed. Finds no module: it only patches numba.np.linalg as arraymath is first imported.
+    """
+
+    def find_spec(self, name, path=None, target=None):
+        if name == "numba.np.arraymath":
+            sys.meta_path.remove(self)
+            from numba.np import linalg
+
+            check = getattr(linalg, "ensure_blas", None)
+            if check is not None:
+                linalg.ensure_blas = _checked_when_used(check)
+        return None
+
+
+def _checked_when_used(ensure_blas):
+    """ensure_blas, except within arraymath's `_HAVE_BLAS = _check_blas()` (numba 0.68)."""
+
+    @functools.wraps(ensure_blas)
+    def checked_when_used():
+        arraymath = sys.modules.get("numba.np.arraymath")
+        if hasattr(arraymath, "_check_blas") and not hasattr(arraymath, "_HAVE_BLAS"):
+            return  # BLAS is there: scipy is a dependency
+        ensure_blas()
+
+    return checked_when_used
+
+
+if "numba.np.arraymath" not in sys.modules:
+    sys.meta_path.insert(0, _BlasCheckWhenUsed())
 
 
 class _InlinerCopies:

@@ -260,6 +260,32 @@ def test_a_process_loads_from_the_cache_then_compiles(tmp_path):
     assert outputs == [["3.0"], ["False", "3.0", "1.5"]]
 
 
+
+_COMPILE_WITHOUT_SCIPY_LINALG = """
+import sys
+import numpy as np
+from shading.jit import njit
+
+first = njit(lambda x: x + 1)(1)  # numba's first compile: it imports numba.np.arraymath
+import numba.np.arraymath
+
+before = "scipy.linalg" in sys.modules
+product = njit(lambda a: np.dot(a, a))(np.array([[1.0, 2.0], [3.0, 4.0]]))  # BLAS
+print(first, before, numba.np.arraymath._HAVE_BLAS, "scipy.linalg" in sys.modules,
+      product.tolist())
+"""
+
+
+def test_a_compile_imports_scipy_linalg_only_for_a_kernel_that_calls_blas():
+    """numba's first compile in a process imports numba.np.arraymath, whose BLAS check
+    imports scipy.linalg (0.3 s); shading.jit skips that check (BLAS counted as there), and
+    a kernel calling np.dot still gets numba's check, scipy.linalg, and the right product."""
+    run = subprocess.run([sys.executable, "-c", _COMPILE_WITHOUT_SCIPY_LINALG],
+                         capture_output=True, text=True, env=child_env(), timeout=300)
+    assert run.returncode == 0, run.stderr[-500:]
+    assert run.stdout.strip().split(maxsplit=4) == ["2", "False", "True", "True",
+                                            "[[7.0, 10.0], [15.0, 22.0]]"]
+
 _WARM_RENDER = """
 import sys
 from pipeline.cli import main
