@@ -110,8 +110,11 @@ RENDER_SECONDS = 9.5
 # 5.91-6.27 s, Euler's 3.88-4.95 s against 4.79-5.42 s, each scaled by 3.4 / the old time;
 # since reach_check is a pointer and the stepping kernels have no C wrapper, scaled by 0.87
 # (Verlet's on the sphere scene, six rounds alternately with b40265a, 2026-11-27 at 06:05:
-# 2.79-3.83 s of CPU against 3.24-4.12 s, every round lower, 3.31 against 3.81 s on average)
-STEP_SECONDS = {"verlet": 1.9, "euler": 2.5, "symplectic-euler": 2.5, "rk4": 1.65,
+# 2.79-3.83 s of CPU against 3.24-4.12 s, every round lower, 3.31 against 3.81 s on average);
+# Verlet's then 3.0: in four traced cold README runs (2026-11-27 at 07:30) it took 2.90-3.76 s
+# where the kernels compiled beside it took 1.03-1.35x their estimates (1.13x on average),
+# and this process ended 0.5-1.7 s after the helper
+STEP_SECONDS = {"verlet": 3.0, "euler": 2.5, "symplectic-euler": 2.5, "rk4": 1.65,
                 "implicit-euler": 2.2, "xpbd": 3.0}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
