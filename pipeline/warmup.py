@@ -68,6 +68,8 @@ from .progress import bar, counter
 # serial: two cold runs alternately with the tree before (2026-11-27 at 05:35: the product
 # 1.9-2.0 s and its pass 0.7-0.9 s against 4.7-5.2 s, the update 0.15-0.22 s against
 # 0.7-0.9 s), scaled by 0.6, the product's old estimate over its old time.
+# Verlet's update since it is serial: 0.23-0.37 s of CPU against 1.14-1.39 s parallel, four
+# rounds alternately (2026-11-27 at 07:55), scaled alike.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -95,7 +97,7 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
                    "pipeline.forces:fem_product": 1.0, "pipeline.forces:fem_diagonal": 0.5,
                    "pipeline.integrators.xpbd:solve_springs": 0.85,
                    "pipeline.integrators.xpbd:solve_fem": 2.7,
-                   "pipeline.integrators.verlet:_update_all": 0.95,
+                   "pipeline.integrators.verlet:_update_all": 0.25,
                    "pipeline.integrators.implicit_euler:_update": 0.1,
                    "pipeline.integrators.euler:euler_update": 0.75,
                    "pipeline.integrators.rk4:_stage": 0.65, "pipeline.integrators.rk4:_finish": 0.4}
