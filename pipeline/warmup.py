@@ -69,7 +69,8 @@ from .progress import bar, counter
 # 1.9-2.0 s and its pass 0.7-0.9 s against 4.7-5.2 s, the update 0.15-0.22 s against
 # 0.7-0.9 s), scaled by 0.6, the product's old estimate over its old time.
 # Verlet's update since it is serial: 0.23-0.37 s of CPU against 1.14-1.39 s parallel, four
-# rounds alternately (2026-11-27 at 07:55), scaled alike.
+# rounds alternately (2026-11-27 at about 07:27), scaled alike; Euler's update since it is serial:
+# 0.31-0.40 s against 0.86-0.98 s, two rounds alternately (07:30), scaled alike.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -99,7 +100,7 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
                    "pipeline.integrators.xpbd:solve_fem": 2.7,
                    "pipeline.integrators.verlet:_update_all": 0.25,
                    "pipeline.integrators.implicit_euler:_update": 0.1,
-                   "pipeline.integrators.euler:euler_update": 0.75,
+                   "pipeline.integrators.euler:euler_update": 0.3,
                    "pipeline.integrators.rk4:_stage": 0.65, "pipeline.integrators.rk4:_finish": 0.4}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
@@ -113,9 +114,9 @@ RENDER_SECONDS = 9.5
 # since reach_check is a pointer and the stepping kernels have no C wrapper, scaled by 0.87
 # (Verlet's on the sphere scene, six rounds alternately with b40265a, 2026-11-27 at 06:05:
 # 2.79-3.83 s of CPU against 3.24-4.12 s, every round lower, 3.31 against 3.81 s on average);
-# Verlet's then 3.0: in four traced cold README runs (2026-11-27 at 07:30) it took 2.90-3.76 s
-# where the kernels compiled beside it took 1.03-1.35x their estimates (1.13x on average),
-# and this process ended 0.5-1.7 s after the helper
+# Verlet's then 3.0: in four traced cold README runs (2026-11-27 at about 07:12) it took
+# 2.90-3.76 s where the kernels compiled beside it took 1.03-1.35x their estimates (1.13x
+# on average), and this process ended 0.5-1.7 s after the helper
 STEP_SECONDS = {"verlet": 3.0, "euler": 2.5, "symplectic-euler": 2.5, "rk4": 1.65,
                 "implicit-euler": 2.2, "xpbd": 3.0}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package

