@@ -147,7 +147,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         damping=model.damping,
         force_dt2=dt * dt,
         steps_per_frame=int(sim.steps_per_frame),
-        colliders=pack_colliders(scene.colliders),
+        colliders=pack_colliders(scene.colliders, model.n),
         wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh) if either else None,
         fem=model.fem if model.fem is not None else no_fem(),
         springs=(offsets, order, model.exists, model.rest, model.stiffness),

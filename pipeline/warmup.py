@@ -71,10 +71,15 @@ from .progress import bar, counter
 # Verlet's update since it is serial: 0.23-0.37 s of CPU against 1.14-1.39 s parallel, four
 # rounds alternately (2026-11-27 at about 07:27), scaled alike; Euler's update since it is serial:
 # 0.31-0.40 s against 0.86-0.98 s, two rounds alternately (07:30), scaled alike.
+# collide_all since its loop over the points is a pointer chosen by the cloth's size: 0.53-0.59 s
+# and the serial loop 0.21-0.25 s against 1.32-1.66 s with the parallel loop linked (three
+# rounds each, 2026-11-27 at about 07:40 and 07:44), scaled by 0.95.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
-COMPILE_SECONDS = {"pipeline.colliders:collide_all": 1.4,
+COMPILE_SECONDS = {"pipeline.colliders:collide_all": 0.55,
+                   "pipeline.colliders:_collide_serially": 0.2,
+                   "pipeline.colliders:_collide_in_chunks": 0.85,
                    "pipeline.colliders:update_poses": 0.7,
                    "pipeline.colliders:_collide_range": 0.2,
                    "pipeline.colliders:sweep_sphere": 0.9, "pipeline.colliders:sweep_plane": 1.0,
@@ -169,14 +174,14 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
-    (System.kernels), Provot's pre-pass passes, the colliders' point range, mesh
-    projection, sweeps and keyframe poses, the wind's band and the FEM's elements (not the
-    absent ones of passes the scene does not use)."""
+    (System.kernels), Provot's pre-pass passes, the colliders' point range and loop over
+    the points, mesh projection, sweeps and keyframe poses, the wind's band and the FEM's
+    elements (not the absent ones of passes the scene does not use)."""
     table = system.colliders
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
-                system.mask.pack, table.range, table.mesh, table.sphere, table.plane,
-                table.box, table.mesh_sweep, table.poses]
+                system.mask.pack, table.range, table.points, table.mesh, table.sphere,
+                table.plane, table.box, table.mesh_sweep, table.poses]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]  # absent: classic

@@ -167,3 +167,29 @@ def test_static_colliders_pack_no_motion_and_keyframes_load_from_json(tmp_path):
     table = pack_colliders(s.colliders)
     assert table.key_count.tolist() == [2]
     np.testing.assert_allclose(table.keys[0, 0], [0, 0, 0, 0, 0, 0, math.radians(10)])
+
+
+def test_the_parallel_loop_over_the_points_moves_them_as_the_serial_one():
+    """A cloth of PARALLEL_POINTS points or more goes through the colliders in parallel
+    chunks, a smaller one in one call: the same positions, bit for bit (each point meets the
+    colliders on its own), for points inside, on and outside a moving box and a sphere."""
+    from pipeline.colliders import PARALLEL_POINTS
+
+    colliders = [Sphere((0.1, 0.0, 0.0), 0.5, friction=0.3),
+                 Box((0.0, 0.2, 0.0), (0.6, 0.3, 0.4), 0.2, (0, 20, 10),
+                     (Keyframe(0.0), Keyframe(1.0, (0.1, 0, 0), (0, 30, 0))))]
+    rng = np.random.default_rng(7)
+    last = rng.uniform(-0.8, 0.8, (3, PARALLEL_POINTS + 11))
+    moved = last + rng.normal(0.0, 0.05, last.shape)
+    pinned = (rng.random(last.shape[1]) < 0.05).astype(np.uint8)
+    ends = []
+    for points in (0, PARALLEL_POINTS):  # the serial loop, then the parallel one
+        table = pack_colliders(colliders, points)
+        x = moved.copy()
+        collide_all(x, last.copy(), pinned, table, 0.25, 0.26)
+        ends.append(x)
+    assert [pack_colliders(colliders, n).points.dispatcher.py_func.__name__
+            for n in (PARALLEL_POINTS - 1, PARALLEL_POINTS)] == ["_collide_serially",
+                                                               "_collide_in_chunks"]
+    assert not np.array_equal(ends[0], moved)  # the colliders moved points
+    assert ends[0].tobytes() == ends[1].tobytes()

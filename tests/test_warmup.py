@@ -86,6 +86,9 @@ TABLES = [MESH + [SWEEPS[1]] + POSES, ["pipeline.colliders:_unmoved", SWEEPS[0]]
 ALL_TABLES = [base + list(kinds) + poses
               for base in (MESH, ["pipeline.colliders:_unmoved"]) for poses in ([], POSES)
               for r in range(len(SWEEPS) + 1) for kinds in itertools.combinations(SWEEPS, r)]
+# the loop over the points through the colliders: serial for the course's sizes, parallel
+# from colliders.PARALLEL_POINTS points on
+LOOPS = [["pipeline.colliders:_collide_serially"], ["pipeline.colliders:_collide_in_chunks"]]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
@@ -110,9 +113,9 @@ INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
 LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard"}
 
 
-def _scenes(tables=TABLES) -> list[list[str]]:
-    return [COMMON + m + t + w + c + i[k] for (k, m), t, w, c, i in
-            itertools.product(enumerate(MODELS), tables, WINDS, SELF, INTEGRATORS)]
+def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
+    return [COMMON + m + t + p + w + c + i[k] for (k, m), t, p, w, c, i in
+            itertools.product(enumerate(MODELS), tables, loops, WINDS, SELF, INTEGRATORS)]
 
 
 def _jobs(names) -> list[warmup.Job]:
@@ -129,12 +132,14 @@ def test_every_job_of_a_scene_has_an_estimate():
     from pipeline.simulation import cloth_model
     from pipeline.system import build_system
 
-    every = [set(listed) for listed in _scenes(ALL_TABLES)]
+    every = [set(listed) for listed in _scenes(ALL_TABLES, LOOPS)]
     assert set().union(*every) == set(warmup.COMPILE_SECONDS)
     assert set(warmup.STEP_SECONDS) == set(INTEGRATORS)  # every stepping kernel's estimate
     seen = set()
-    for path in sorted(SCENES.glob("*.json")):
-        scene = load_scene(path)
+    larger = ["cloth.num_width_points=80", "cloth.num_height_points=80"]  # the parallel loop
+    for path, overrides in [(p, []) for p in sorted(SCENES.glob("*.json"))] + [
+            (SCENES / "sphere.json", larger)]:
+        scene = load_scene(path, overrides)
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}
         assert {job.name for job in warmup.sim_jobs(system) if job.linked} <= LINKED
@@ -143,8 +148,8 @@ def test_every_job_of_a_scene_has_an_estimate():
             names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
         assert names <= set(warmup.COMPILE_SECONDS), path.name
         seen |= names
-    # the FEM's kernels, a mesh's projection, every collider kind, keyframes, wind and
-    # self-collision all occur
+    # the FEM's kernels, a mesh's projection, every collider kind, keyframes, wind,
+    # self-collision and both loops over the points all occur
     assert seen == set(warmup.COMPILE_SECONDS)
 
 
