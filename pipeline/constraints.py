@@ -1,10 +1,11 @@
 """Provot's stretch limit (SPEC section 2, step 5): Gauss-Seidel over the spring list.
 
 Walking every spring in order is a serial chain, so the walk visits only the springs that
-can need a correction: a parallel pre-pass marks, in a 6-bit mask per point, the springs
-longer than (slightly less than) their limit; every correction then marks the later springs
-that share a moved point, since their lengths changed. An unmarked spring has the same
-endpoints as in the pre-pass, so skipping it is exactly what the full walk would do.
+can need a correction: a pre-pass (parallel on large cloths) marks, in a 6-bit mask per
+point, the springs longer than (slightly less than) their limit; every correction then
+marks the later springs that share a moved point, since their lengths changed. An unmarked
+spring has the same endpoints as in the pre-pass, so skipping it is exactly what the full
+walk would do.
 """
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import numpy as np
 from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 
-from .forces import CHUNKS, _chunk
+from .forces import CHUNKS, PARALLEL_POINTS, _chunk
 
 STRETCH_LIMIT = 1.1  # a spring may reach 110 % of its rest length
 
@@ -36,25 +37,33 @@ def existence_bits(exists: np.ndarray) -> np.ndarray:
 
 
 class CandidateMask(NamedTuple):
-    """Scratch of `limit_stretch`, and the pointers its pre-pass's parallel loop calls:
-    linked in, the two passes were compiled again in each copy numba makes of the loop's
-    body (as forces.SpringKernels)."""
+    """Scratch of `limit_stretch`, and the pointers of its pre-pass: the loop and the two
+    passes it calls (linked into a parallel loop, the passes were compiled again in each
+    copy numba makes of the loop's body, as forces.SpringKernels)."""
 
     mask: np.ndarray  # (N + pad,) uint8: bit d, spring (d, p) is to be visited
     long: np.ndarray  # (6, N) bool: spring (d, p) may be longer than its limit
     flag: KernelPointer  # _flag_long
     pack: KernelPointer  # _pack_mask
+    # the pre-pass (_mark_serially or _mark_in_chunks, by the cloth's size:
+    # forces.PARALLEL_POINTS; limit_stretch compiles in 0.9-1.1 s without the parallel loop
+    # linked, 1.6-1.9 s with it); None inside it
+    mark: KernelPointer | None = None
 
 
 def candidate_mask(n: int, present: bool = True) -> CandidateMask:
     """Scratch of `limit_stretch` for n points, its passes absent unless `present`."""
     mask, long = np.zeros(3 * n + 2, dtype=np.uint8), np.zeros((6, n), dtype=np.bool_)
-    index = types.int64
-    flag = KernelPointer(_flag_long, (types.float64[:, ::1], index, types.float64[::1],
-                                      types.bool_[::1], index, index), present=present)
+    index, field = types.int64, types.float64[:, ::1]
+    flag = KernelPointer(_flag_long, (field, index, types.float64[::1], types.bool_[::1],
+                                      index, index), present=present)
     pack = KernelPointer(_pack_mask, (long, types.uint8[::1], mask, index, index),
                          present=present)
-    return CandidateMask(mask, long, flag, pack)
+    scratch = CandidateMask(mask, long, flag, pack)
+    loop = _mark_in_chunks if n >= PARALLEL_POINTS else _mark_serially
+    mark = KernelPointer(loop, (field, types.int64[::1], types.uint8[::1], field, scratch),
+                         present=present)
+    return scratch._replace(mark=mark)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -83,9 +92,20 @@ def _pack_mask(long, exist_bits, mask, lo, hi):
                   | (np.uint8(l5[i]) << 5)) & bits[i]
 
 
-@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True)
-def _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch):
-    mask, long, flag, pack = scratch
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def _mark_serially(x, offsets, exist_bits, limit_sq_lo, scratch):
+    """The pre-pass over every point in one call of each pass."""
+    mask, long, flag, pack, _ = scratch
+    n = x.shape[1]
+    for d in range(6):
+        flag(x, offsets[d], limit_sq_lo[d], long[d], 0, n)
+    pack(long, exist_bits, mask, 0, n)
+
+
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
+def _mark_in_chunks(x, offsets, exist_bits, limit_sq_lo, scratch):
+    """The pre-pass over chunks of points in parallel."""
+    mask, long, flag, pack, _ = scratch
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
@@ -114,7 +134,7 @@ def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
     none if both are. `scratch` comes from candidate_mask.
     """
     n = x.shape[1]
-    _mark_long_springs(x, offsets, exist_bits, limit_sq_lo, scratch)
+    scratch.mark(x, offsets, exist_bits, limit_sq_lo, CandidateMask(*scratch[:-1], None))
     mask = scratch.mask
     for p in range(n):
         if mask[p] == 0:

@@ -31,6 +31,15 @@ from .fem import (add_fem_forces, fem_energy, fem_filtered_jacobian_product,
 from .model import DIRECTION_DI, DIRECTION_DJ
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
+# From this many points on, the colliders' and Provot's per-point passes run as parallel
+# loops (colliders.ColliderTable.points, constraints.CandidateMask.mark); under it, in one
+# serial call, which is as fast there and compiles sooner (numba's parallel loop costs
+# 0.6-1.0 s of compile whatever its body). Measured, one serial call against the parallel
+# loop at 2 threads: the colliders on the draped sphere scene 11.0 against 9.5-10.0 us at
+# 2500 points, 37-54 against 20-34 us at 10,000, 141-153 against 79-83 us at 40,000
+# (at 1 thread); Provot's pre-pass 9.9-10.1 against 10.1-11.7 us at 2500 points, 37.8
+# against 24.5 us at 10,000, 162 against 94 us at 40,000.
+PARALLEL_POINTS = 5000
 
 
 def direction_offsets(nw: int) -> np.ndarray:

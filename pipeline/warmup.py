@@ -73,7 +73,10 @@ from .progress import bar, counter
 # 0.31-0.40 s against 0.86-0.98 s, two rounds alternately (07:30), scaled alike.
 # collide_all since its loop over the points is a pointer chosen by the cloth's size: 0.53-0.59 s
 # and the serial loop 0.21-0.25 s against 1.32-1.66 s with the parallel loop linked (three
-# rounds each, 2026-11-27 at about 07:40 and 07:44), scaled by 0.95.
+# rounds each, 2026-11-27 at about 07:40 and 07:44), scaled by 0.95; Provot's limit since
+# its pre-pass is a pointer chosen alike: 0.84-0.99 s and the serial pre-pass 0.18-0.23 s
+# against 1.56-1.94 s with the parallel pre-pass linked (three rounds each, 07:55), scaled
+# by 0.79, its old estimate over its old time.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -89,7 +92,9 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 0.55,
                    "pipeline.forces:_direction_forces": 0.55, "pipeline.forces:_gather": 0.55,
                    "pipeline.forces:fem_internal_forces": 0.6,
                    "pipeline.self_collision:self_collide": 3.1,
-                   "pipeline.constraints:limit_stretch": 1.4,
+                   "pipeline.constraints:limit_stretch": 0.7,
+                   "pipeline.constraints:_mark_serially": 0.15,
+                   "pipeline.constraints:_mark_in_chunks": 0.7,
                    "pipeline.constraints:_flag_long": 0.4, "pipeline.constraints:_pack_mask": 0.25,
                    "pipeline.reach:reach_check": 0.9, "pipeline.system:motion_summary": 0.45,
                    "pipeline.system:energy_guard": 0.3, "pipeline.wind:add_wind_force": 1.2,
@@ -174,14 +179,14 @@ def _cache_index(disp) -> list[tuple]:
 
 def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
-    (System.kernels), Provot's pre-pass passes, the colliders' point range and loop over
-    the points, mesh projection, sweeps and keyframe poses, the wind's band and the FEM's
-    elements (not the absent ones of passes the scene does not use)."""
+    (System.kernels), Provot's pre-pass and its passes, the colliders' point range and loop
+    over the points, mesh projection, sweeps and keyframe poses, the wind's band and the
+    FEM's elements (not the absent ones of passes the scene does not use)."""
     table = system.colliders
     kernels = system.kernels
-    pointers = [*kernels._replace(springs=None), *kernels.springs, system.mask.flag,
-                system.mask.pack, table.range, table.points, table.mesh, table.sphere,
-                table.plane, table.box, table.mesh_sweep, table.poses]
+    pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
+                table.range, table.points, table.mesh, table.sphere, table.plane, table.box,
+                table.mesh_sweep, table.poses]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]  # absent: classic

@@ -86,9 +86,10 @@ TABLES = [MESH + [SWEEPS[1]] + POSES, ["pipeline.colliders:_unmoved", SWEEPS[0]]
 ALL_TABLES = [base + list(kinds) + poses
               for base in (MESH, ["pipeline.colliders:_unmoved"]) for poses in ([], POSES)
               for r in range(len(SWEEPS) + 1) for kinds in itertools.combinations(SWEEPS, r)]
-# the loop over the points through the colliders: serial for the course's sizes, parallel
-# from colliders.PARALLEL_POINTS points on
-LOOPS = [["pipeline.colliders:_collide_serially"], ["pipeline.colliders:_collide_in_chunks"]]
+# the loops over the points through the colliders and of Provot's pre-pass (the classic
+# model's): serial for the course's sizes, parallel from forces.PARALLEL_POINTS points on
+LOOPS = [(["pipeline.colliders:_collide_serially"], ["pipeline.constraints:_mark_serially"]),
+         (["pipeline.colliders:_collide_in_chunks"], ["pipeline.constraints:_mark_in_chunks"])]
 WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
 SELF = [[], ["pipeline.self_collision:self_collide"]]
 IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
@@ -114,7 +115,8 @@ LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard"}
 
 
 def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
-    return [COMMON + m + t + p + w + c + i[k] for (k, m), t, p, w, c, i in
+    return [COMMON + m + t + p[0] + (p[1] if k == 0 else []) + w + c + i[k]
+            for (k, m), t, p, w, c, i in
             itertools.product(enumerate(MODELS), tables, loops, WINDS, SELF, INTEGRATORS)]
 
 

@@ -32,6 +32,7 @@ import numpy as np
 from numba.core import types
 from shading.jit import KernelPointer, njit, prange
 
+from ..forces import PARALLEL_POINTS
 from . import box, mesh, plane, sphere
 
 PARAMS_WIDTH = 16
@@ -39,12 +40,6 @@ POSE_WIDTH = 12  # R row-major (9), T (3)
 _KINDS = (sphere, plane, box, mesh)
 _BY_TYPE = {kind.SCENE_TYPE: kind for kind in _KINDS}
 CHUNKS = 8  # work items of the parallel point loop
-# Cloths of at least this many points go through the colliders in a parallel loop
-# (_collide_in_chunks); smaller ones in one call (_collide_serially). Measured on the sphere
-# scene, draped, one thread against two: 11.0 against 9.5-10.0 us at 2500 points, 37-54
-# against 20-34 us at 10,000, 141-153 against 79-83 us at 40,000; the parallel loop costs
-# 0.6-1.0 s more compile (collide_all with it linked: 1.3-1.7 s, without: 0.65-0.72 s).
-PARALLEL_POINTS = 5000
 
 
 class ColliderData:
@@ -87,7 +82,8 @@ class ColliderTable(NamedTuple):
     poses: KernelPointer | None = None  # update_poses; absent when no collider has keyframes
     range: KernelPointer | None = None  # _collide_range for this table; None inside it
     # the loop over the points (_collide_serially or _collide_in_chunks, by the cloth's size:
-    # PARALLEL_POINTS); None inside it
+    # forces.PARALLEL_POINTS; collide_all compiles in 0.5-0.6 s without the parallel loop
+    # linked, 1.3-1.7 s with it); None inside it
     points: KernelPointer | None = None
 
 
