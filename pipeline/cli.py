@@ -491,7 +491,7 @@ def run(args, err: _Errors, source=None) -> int:
                           if plan.kind else None)
             # A first run on this machine compiles the kernels, in two processes when it can.
             with FirstRun(scene.simulation.integrator, render_job,
-                          err.say if show else None, show) as first:
+                          err.say if show else None, show, scene) as first:
                 sim = Simulation(scene, shot_seconds=plan.shot_seconds, prepare=first.start)
                 first.finish(sim)
             return _execute(args, err, scene, plan, sim, writers, golden,

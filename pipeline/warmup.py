@@ -182,15 +182,34 @@ def kernel_pointers(system) -> list:
     (System.kernels), Provot's pre-pass and its passes, the colliders' point range and loop
     over the points, mesh projection, sweeps and keyframe poses, the wind's band and the
     FEM's elements (not the absent ones of passes the scene does not use)."""
-    table = system.colliders
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
-                table.range, table.points, table.mesh, table.sphere, table.plane, table.box,
-                table.mesh_sweep, table.poses]
+                *_table_pointers(system.colliders)]
     if system.wind is not None:
         pointers.append(system.wind.band)
     pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]  # absent: classic
     return [p for p in pointers if p is not None and p.present]
+
+
+def _table_pointers(table) -> list:
+    """A collider table's KernelPointers (absent ones too)."""
+    return [table.range, table.points, table.mesh, table.sphere, table.plane, table.box,
+            table.mesh_sweep, table.poses]
+
+
+def early_jobs(scene) -> list[Job]:
+    """For a scene with a mesh collider, the mesh's projection and sweep, typed from a
+    stand-in table (colliders.stand_in_table): the helper compiles them while this process
+    builds the mesh's distance grid, whose own kernels compile first (4-5 s); the table's
+    other kernels are shared out later, as usual. None for other scenes."""
+    from .colliders import mesh, stand_in_table
+
+    colliders = scene.colliders
+    if not any(type(c) is mesh.SCENE_TYPE for c in colliders):
+        return []
+    points = scene.cloth.num_width_points * scene.cloth.num_height_points
+    table = stand_in_table(colliders, points)
+    return [Job.of(p.dispatcher, p.argtypes) for p in (table.mesh, table.mesh_sweep)]
 
 
 def sim_jobs(system) -> list[Job]:
@@ -318,11 +337,15 @@ class FirstRun:
     leaving the `with` early kills it.
     A compile outside them (a mesh collider's distance grid while the System is built) is
     watched: the first says the first-run message (`say`), `progress` counts our kernels on
-    stderr, and its time counts in `seconds`."""
+    stderr, and its time counts in `seconds`. Given the `scene`, a scene with a mesh
+    collider starts the helper on entering, on the collider table's kernels (early_jobs),
+    while this process compiles the grid's."""
 
     def __init__(self, integrator: str, render: Callable[[Any], RenderJob] | None = None,
-                 say: Callable[[str], None] | None = None, progress: bool = False):
+                 say: Callable[[str], None] | None = None, progress: bool = False,
+                 scene: Any = None):
         self.integrator, self.render, self.say, self.progress = integrator, render, say, progress
+        self.scene = scene
         self.seconds = 0.0
         self.said = False
         self._inside = False  # in start or finish, which time their own compiling
@@ -332,6 +355,11 @@ class FirstRun:
         self._bar = None
         self._helper: subprocess.Popen | None = None
         self._reader: threading.Thread | None = None
+        self._ready: threading.Event | None = None  # set once the helper's simulation
+        # kernels are compiled (or it died)
+        self._early: list[Job] = []  # the helper's first jobs (early_jobs)
+        self._reported = 0  # kernels the helper reported before the bar was made
+        self._reports = threading.Lock()
 
     def __enter__(self) -> FirstRun:
         from numba.core import event
@@ -347,6 +375,13 @@ class FirstRun:
 
         self._listener = Listener()
         event.register("numba:compile", self._listener)
+        if self.scene is not None:
+            try:
+                self._early = [job for job in early_jobs(self.scene) if not job.cached()]
+            except Exception:  # numba's cache layout changed: compile on first use
+                self._early = []
+            if self._early:
+                self._start_helper(self._early)
         return self
 
     def __exit__(self, *exc) -> None:
@@ -405,7 +440,8 @@ class FirstRun:
         once the simulation's are all compiled."""
         try:
             stepping, pointed = integrator_jobs(self.integrator, system)
-            jobs = sorted((j for j in sim_jobs(system) + pointed if not j.cached()),
+            jobs = sorted((j for j in sim_jobs(system) + pointed
+                           if j not in self._early and not j.cached()),
                           key=lambda job: COMPILE_SECONDS[job.name], reverse=True)  # longest first
             step = 0.0 if stepping.cached() else STEP_SECONDS[self.integrator]
             render = self.render(model) if self.render is not None else None
@@ -413,7 +449,7 @@ class FirstRun:
                 render = None
         except Exception:  # numba's cache layout changed: compile on first use, as before
             return
-        if not (jobs or step or render):
+        if not (jobs or step or render or self._early):
             return
         with self._own():
             here, helper, two_processes = split(jobs, render is not None, step)
@@ -423,17 +459,24 @@ class FirstRun:
                 self.say(f"compiling the other kernels (about {seconds:.0f} s)" if self.said
                          else FIRST_RUN.format(f", about {seconds:.0f} s"))
                 self.said = True
-            self._bar = bar(len(jobs) + int(step > 0) + int(render is not None), "compile",
-                            "kernel", self.progress, 0)
-            ready = self._start_helper(helper, render) if two_processes else None
+            with self._reports:
+                self._bar = bar(len(self._early) + len(jobs) + int(step > 0)
+                                + int(render is not None), "compile", "kernel", self.progress,
+                                0)
+                self._bar.update(self._reported)
+            there = render if two_processes else None  # the renderer's, in the helper
+            if two_processes and self._helper is None:
+                self._start_helper([])
+            if self._helper is not None:  # (started on entering, for a mesh's kernels)
+                self._send_rest(helper, there)
             # the stepping kernel from its arguments' types: the kernels it calls through
             # pointers need not be compiled yet (the helper's may not be)
             for job in here + ([stepping] if step else []):
                 job.compile()
                 self._bar.update(1)
-            if ready is not None:
-                ready.wait()
-            elif render is not None:
+            if self._ready is not None:
+                self._ready.wait()
+            if render is not None and there is None:
                 render.run()
                 self._bar.update(1)
 
@@ -463,14 +506,15 @@ class FirstRun:
         self._helper.wait()
         if not kill:
             self._reader.join()  # its last reports are on the bar
-        self._helper.stdout.close()
+        for pipe in (self._helper.stdin, self._helper.stdout):
+            with contextlib.suppress(OSError):
+                pipe.close()
         self._helper = None
 
-    def _start_helper(self, helper: list[Job], render: RenderJob | None) -> threading.Event:
-        """Start the helper on its jobs and `render`; the event is set once its simulation
-        kernels are compiled (or it died). It reports each kernel it finishes on its
-        stdout."""
-        payload = pickle.dumps((helper, render), protocol=pickle.HIGHEST_PROTOCOL)
+    def _start_helper(self, early: list[Job]) -> None:
+        """Start the helper on its first jobs, `early`; the rest follow (_send_rest). It
+        reports each kernel it finishes on its stdout; self._ready is set once its
+        simulation kernels are compiled (or it died)."""
         # Run from the folder holding this package: `-m` puts the working folder first on
         # the path, and a checkout there (a user's clone beside the installed package) would
         # be imported instead, its kernels cached apart from ours (numba keys the cache on
@@ -480,35 +524,53 @@ class FirstRun:
                                 stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                 stderr=subprocess.DEVNULL)
         self._helper = proc
-        ready = threading.Event()
-        kernels = self._bar
+        ready = self._ready = threading.Event()
 
         def follow() -> None:  # the helper's reports, until it ends (or dies)
             for line in proc.stdout:
                 if line.strip() == SIMULATION_DONE:
                     ready.set()
-                else:
-                    kernels.update(1)
+                    continue
+                with self._reports:
+                    if self._bar is None:
+                        self._reported += 1
+                    else:
+                        self._bar.update(1)
             ready.set()
 
         self._reader = threading.Thread(target=follow, name="warmup-helper", daemon=True)
         self._reader.start()
+        self._send(early)
+
+    def _send_rest(self, helper: list[Job], render: RenderJob | None) -> None:
+        """The helper's other jobs, and the renderer's (None: not there)."""
+        self._send((helper, render))
         try:
-            proc.stdin.write(payload)
-            proc.stdin.close()
-        except OSError:  # the helper died at once: its share is compiled on use
+            self._helper.stdin.close()
+        except OSError:
             pass
-        return ready
+
+    def _send(self, payload) -> None:
+        try:
+            pickle.dump(payload, self._helper.stdin, protocol=pickle.HIGHEST_PROTOCOL)
+            self._helper.stdin.flush()
+        except OSError:  # the helper died: its share is compiled on use
+            pass
 
 
 SIMULATION_DONE = b"simulation"
 
 
 def _helper_main() -> None:
-    """The helper process: compile the jobs read from stdin, one line per kernel, then the
-    renderer's (if sent)."""
-    helper, render = pickle.loads(sys.stdin.buffer.read())
+    """The helper process: compile the jobs read from stdin (a list, then a list and the
+    RenderJob or None), one line per kernel, then the renderer's (if sent)."""
     out = sys.stdout.buffer
+    early = pickle.load(sys.stdin.buffer)
+    for job in early:
+        job.compile()
+        out.write(job.name.encode() + b"\n")
+        out.flush()
+    helper, render = pickle.load(sys.stdin.buffer)
     for job in helper:
         job.compile()
         out.write(job.name.encode() + b"\n")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import pickle
 import random
 import re
 import subprocess
@@ -410,3 +411,64 @@ def test_compiles_inside_start_are_not_watched_again(monkeypatch):
         first.finish(SimpleNamespace(integrator="verlet", system=None))
     assert said == [warmup.FIRST_RUN.format(", about 0 s")]  # energy_guard's 0.3 s
     assert watched == [] and bars[0].done == bars[0].total == 1 and first.seconds > 0.0
+
+
+def test_a_mesh_scenes_early_jobs_are_its_projection_and_sweep():
+    """early_jobs types the mesh's kernels from a stand-in table exactly as the scene's
+    System does (else this process would compile them again, the helper's work wasted), and
+    gives nothing for a scene without a mesh."""
+    from pipeline.scene import load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.system import build_system
+
+    bowl = load_scene(SCENES / "bowl.json")
+    early = warmup.early_jobs(bowl)
+    assert [job.name for job in early] == ["pipeline.colliders.mesh:project",
+                                           "pipeline.colliders:sweep_mesh"]
+    jobs = warmup.sim_jobs(build_system(bowl, cloth_model(bowl)))
+    assert all(job in jobs for job in early)
+    assert warmup.early_jobs(load_scene(SCENES / "sphere.json")) == []
+
+
+class _Stdin(io.BytesIO):
+    """A helper's stdin that keeps what was written after it is closed."""
+
+    def close(self):
+        if not self.closed:
+            self.kept = self.getvalue()
+        super().close()
+
+
+def test_a_mesh_scene_starts_the_helper_on_entering_on_the_mesh_kernels(monkeypatch):
+    """With early jobs (a mesh collider), the helper starts as the run begins, on those;
+    start then compiles the rest here and sends the helper no job twice (an empty share
+    when one process is sooner), waits for it, and its reports made before start count on
+    start's bar."""
+    early = [_Job("pipeline.colliders.mesh:project"), _Job("pipeline.colliders:sweep_mesh")]
+    reach = _Job("pipeline.reach:reach_check")
+    helpers, bars = [], []
+
+    class Helper(_Helper):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            self.stdin = _Stdin()
+            self.stdout = io.BytesIO(b"project\nsweep_mesh\n" + warmup.SIMULATION_DONE + b"\n")
+            helpers.append(self)
+
+    monkeypatch.setattr(warmup, "early_jobs", lambda scene: early)
+    monkeypatch.setattr(warmup.subprocess, "Popen", Helper)
+    monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
+    monkeypatch.setattr(warmup, "sim_jobs", lambda system: early + [reach])
+    monkeypatch.setattr(warmup, "integrator_jobs",
+                        lambda integrator, system: (_Job("s", cached=True), []))
+    monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs, [], False))
+    with warmup.FirstRun("verlet", scene=object()) as first:
+        assert len(helpers) == 1  # on entering
+        first.start(None, None)
+        first.finish(SimpleNamespace(integrator="verlet", system=None))
+    stream = io.BytesIO(helpers[0].stdin.kept)
+    sent_early, (share, render) = pickle.load(stream), pickle.load(stream)
+    assert [job.name for job in sent_early] == [job.name for job in early]
+    assert share == [] and render is None
+    assert reach.compiled == 1 and [job.compiled for job in early] == [0, 0]
+    assert bars[0].total == bars[0].done == 3

@@ -113,8 +113,28 @@ def pack_colliders(colliders: Sequence[object], points: int = 0) -> ColliderTabl
         pivot[c] = obj.pivot
         for k, key in enumerate(obj.keyframes):
             keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
-    table = ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
-                          np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
+    return _with_pointers(ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
+                                        np.zeros((count, 2, POSE_WIDTH)),
+                                        np.ones(count, dtype=np.uint8)), points)
+
+
+def stand_in_table(colliders: Sequence[object], points: int = 0) -> ColliderTable:
+    """A table of the types of pack_colliders(colliders, points), its pointers the same,
+    without packing anything (no mesh's distance grid is built): what the first run's
+    helper compiles from while this process builds the grids (pipeline.warmup)."""
+    count = len(colliders)
+    key_len = max([len(obj.keyframes) for obj in colliders] + [1])
+    kinds = np.array([_BY_TYPE[type(obj)].KIND for obj in colliders], dtype=np.int64)
+    key_count = np.array([len(obj.keyframes) for obj in colliders], dtype=np.int64)
+    return _with_pointers(ColliderTable(
+        kinds, np.zeros((count, PARAMS_WIDTH)), np.zeros(1), np.zeros((count, key_len, 7)),
+        key_count, np.zeros((count, 3)), np.zeros((count, 2, POSE_WIDTH)),
+        np.ones(count, dtype=np.uint8)), points)
+
+
+def _with_pointers(table: ColliderTable, points: int) -> ColliderTable:
+    """`table` with its kernel pointers, for a cloth of `points` points."""
+    kinds, key_count = table.kinds, table.key_count
     projection = mesh.project if mesh.KIND in kinds else _unmoved
     table = table._replace(mesh=KernelPointer(
         projection, (table.params, np.int64(0), table.data) + (0.0,) * 6, POINT))
