@@ -46,7 +46,7 @@ class CandidateMask(NamedTuple):
     flag: KernelPointer  # _flag_long
     pack: KernelPointer  # _pack_mask
     # the pre-pass (_mark_serially or _mark_in_chunks, by the cloth's size:
-    # forces.PARALLEL_POINTS; limit_stretch compiles in 0.9-1.1 s without the parallel loop
+    # forces.PARALLEL_POINTS; limit_stretch compiles in 0.8-1.0 s without the parallel loop
     # linked, 1.6-1.9 s with it); None inside it
     mark: KernelPointer | None = None
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import pickle
+import queue
 import subprocess
 import sys
 import threading
@@ -75,7 +76,7 @@ from .progress import bar, counter
 # and the serial loop 0.21-0.25 s against 1.32-1.66 s with the parallel loop linked (three
 # rounds each, 2026-11-27 at about 07:40 and 07:44), scaled by 0.95; Provot's limit since
 # its pre-pass is a pointer chosen alike: 0.84-0.99 s and the serial pre-pass 0.18-0.23 s
-# against 1.56-1.94 s with the parallel pre-pass linked (three rounds each, 07:55), scaled
+# against 1.56-1.94 s with the parallel pre-pass linked (three rounds each, about 07:50), scaled
 # by 0.79, its old estimate over its old time.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
@@ -338,8 +339,8 @@ class FirstRun:
     A compile outside them (a mesh collider's distance grid while the System is built) is
     watched: the first says the first-run message (`say`), `progress` counts our kernels on
     stderr, and its time counts in `seconds`. Given the `scene`, a scene with a mesh
-    collider starts the helper on entering, on the collider table's kernels (early_jobs),
-    while this process compiles the grid's."""
+    collider starts the helper on entering, on the mesh's projection and sweep
+    (early_jobs), while this process compiles the distance grid's kernels."""
 
     def __init__(self, integrator: str, render: Callable[[Any], RenderJob] | None = None,
                  say: Callable[[str], None] | None = None, progress: bool = False,
@@ -563,24 +564,43 @@ SIMULATION_DONE = b"simulation"
 
 def _helper_main() -> None:
     """The helper process: compile the jobs read from stdin (a list, then a list and the
-    RenderJob or None), one line per kernel, then the renderer's (if sent)."""
+    RenderJob or None), one line per kernel, then the renderer's (if sent). stdin is read
+    in a thread as it comes: the second payload (a RenderJob carries the cloth model, 0.1-1
+    MB) is written while the first jobs compile, and the pipe would otherwise keep the
+    writer, the compiling process, waiting."""
+    payloads: queue.Queue = queue.Queue()
+
+    def read() -> None:
+        with contextlib.suppress(EOFError, OSError):  # the other process ended
+            while True:
+                payloads.put(pickle.load(sys.stdin.buffer))
+        payloads.put(None)
+
+    threading.Thread(target=read, name="warmup-stdin", daemon=True).start()
     out = sys.stdout.buffer
-    early = pickle.load(sys.stdin.buffer)
-    for job in early:
-        job.compile()
-        out.write(job.name.encode() + b"\n")
+
+    def report(line: bytes) -> None:
+        out.write(line + b"\n")
         out.flush()
-    helper, render = pickle.load(sys.stdin.buffer)
-    for job in helper:
-        job.compile()
-        out.write(job.name.encode() + b"\n")
-        out.flush()
-    out.write(SIMULATION_DONE + b"\n")
-    out.flush()
+
+    def compile_all(jobs: list[Job]) -> None:
+        for job in jobs:
+            job.compile()
+            report(job.name.encode())
+
+    early = payloads.get()
+    if early is None:
+        return
+    compile_all(early)
+    rest = payloads.get()
+    if rest is None:
+        return
+    helper, render = rest
+    compile_all(helper)
+    report(SIMULATION_DONE)
     if render is not None:
         render.run()
-        out.write(b"render\n")
-        out.flush()
+        report(b"render")
 
 
 if __name__ == "__main__":

@@ -6,11 +6,13 @@ from __future__ import annotations
 import io
 import itertools
 import json
+import os
 import pickle
 import random
 import re
 import subprocess
 import sys
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -472,3 +474,41 @@ def test_a_mesh_scene_starts_the_helper_on_entering_on_the_mesh_kernels(monkeypa
     assert share == [] and render is None
     assert reach.compiled == 1 and [job.compiled for job in early] == [0, 0]
     assert bars[0].total == bars[0].done == 3
+
+
+_UNBLOCK = threading.Event()  # lets _Blocking's compile end (the helper unpickles a copy)
+
+
+class _Blocking(_Job):
+    def compile(self):
+        assert _UNBLOCK.wait(120)
+
+
+def test_the_helper_reads_its_second_payload_while_it_compiles_the_first(monkeypatch):
+    """The helper takes all of stdin as it comes: the second payload (here 1.6 MB, more than
+    a pipe holds) is written while the first jobs still compile, so this process, the
+    writer, never waits on the helper; then it compiles both in order."""
+    read_end, write_end = os.pipe()
+    stdin = io.TextIOWrapper(os.fdopen(read_end, "rb"))
+    stdout = io.TextIOWrapper(io.BytesIO())
+    monkeypatch.setattr(sys, "stdin", stdin)
+    monkeypatch.setattr(sys, "stdout", stdout)
+    _UNBLOCK.clear()
+    helper = threading.Thread(target=warmup._helper_main, daemon=True)
+    helper.start()
+    big = _Job("big")
+    big.args = (np.zeros(200_000),)  # 1.6 MB pickled
+
+    def write():
+        with os.fdopen(write_end, "wb") as pipe:
+            pickle.dump([_Blocking("early")], pipe)
+            pickle.dump(([big], None), pipe)
+
+    writer = threading.Thread(target=write, daemon=True)
+    writer.start()
+    writer.join(20)
+    done_writing = not writer.is_alive()
+    _UNBLOCK.set()
+    helper.join(60)
+    assert done_writing and not helper.is_alive()
+    assert stdout.buffer.getvalue() == b"early\nbig\n" + warmup.SIMULATION_DONE + b"\n"
