@@ -50,10 +50,11 @@ def describe(collider: object) -> str:
     return type(collider).__name__.lower()
 
 
-def still_table(colliders: Sequence[object]) -> ColliderTable:
-    """The colliders packed with friction 0: their projection then puts a point that has
-    not moved since the last step exactly where it goes out."""
-    return pack_colliders([dataclasses.replace(c, friction=0.0) for c in colliders])
+def still_table(colliders: Sequence[object], points: int = 0) -> ColliderTable:
+    """The colliders packed with friction 0, for a cloth of `points` points: their
+    projection then puts a point that has not moved since the last step exactly where it
+    goes out."""
+    return pack_colliders([dataclasses.replace(c, friction=0.0) for c in colliders], points)
 
 
 def project_out(x: np.ndarray, pinned: np.ndarray, table: ColliderTable,
@@ -78,12 +79,13 @@ def resolve_start_inside(scene: Scene, model: ClothModel) -> list[tuple[object, 
     for collider in scene.colliders:
         if not collider.keyframes and clearance(collider, points) > 0.0:
             continue  # no point can be inside: skip the projection (and its compilation)
-        count = int(project_out(model.x0.copy(), model.pinned, still_table([collider])).sum())
+        count = int(project_out(model.x0.copy(), model.pinned,
+                                still_table([collider], model.n)).sum())
         if count:
             found.append((collider, count))
     if not found:
         return found
-    _relax(model, still_table(scene.colliders))
+    _relax(model, still_table(scene.colliders, model.n))
     for collider, count in found:
         warnings.warn(f"{count} cloth point{'s' * (count != 1)} started inside the "
                       f"{describe(collider)}: the cloth was moved out around it, at rest, "
