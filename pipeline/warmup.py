@@ -569,11 +569,13 @@ def _helper_main() -> None:
     MB) is written while the first jobs compile, and the pipe would otherwise keep the
     writer, the compiling process, waiting."""
     payloads: queue.Queue = queue.Queue()
+    source = sys.stdin.buffer
 
     def read() -> None:
-        with contextlib.suppress(EOFError, OSError):  # the other process ended
+        # the other process ended (EOF, a broken pipe), or stdin was closed here
+        with contextlib.suppress(EOFError, OSError, ValueError):
             while True:
-                payloads.put(pickle.load(sys.stdin.buffer))
+                payloads.put(pickle.load(source))
         payloads.put(None)
 
     threading.Thread(target=read, name="warmup-stdin", daemon=True).start()

@@ -510,5 +510,7 @@ def test_the_helper_reads_its_second_payload_while_it_compiles_the_first(monkeyp
     done_writing = not writer.is_alive()
     _UNBLOCK.set()
     helper.join(60)
+    output = stdout.buffer.getvalue()
+    stdin.close()
     assert done_writing and not helper.is_alive()
-    assert stdout.buffer.getvalue() == b"early\nbig\n" + warmup.SIMULATION_DONE + b"\n"
+    assert output == b"early\nbig\n" + warmup.SIMULATION_DONE + b"\n"
