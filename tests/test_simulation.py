@@ -17,7 +17,7 @@ import pipeline
 from pipeline import DivergenceError, StabilityWarning, load_scene
 from pipeline.constraints import limit_stretch
 from pipeline.simulation import Simulation
-from shading.jit import njit
+from shading.jit import KernelPointer, njit
 
 from conftest import COURSE_SCENES, cloth_dict, scene_dict, scene_path, spring_pairs
 
@@ -399,7 +399,6 @@ def test_provots_pre_pass_in_parallel_chunks_limits_as_in_one_call(rng):
     parallel chunks, below in one call: the limit moves the points to the same place, bit
     for bit, either way (an 80x80 cloth, 6400 points, its springs stretched at random)."""
     from pipeline.constraints import _mark_in_chunks, _mark_serially
-    from shading.jit import KernelPointer
 
     sim = Simulation(load_scene(scene_path("pinned2"), ["cloth.num_width_points=80",
                                                         "cloth.num_height_points=80"]))
