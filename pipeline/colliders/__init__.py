@@ -96,40 +96,34 @@ def euler_matrix(degrees: Sequence[float]) -> np.ndarray:
 
 def pack_colliders(colliders: Sequence[object], points: int = 0) -> ColliderTable:
     """The packed table of `colliders` (scene order), for a cloth of `points` points."""
-    count = len(colliders)
-    kinds = np.zeros(count, dtype=np.int64)
-    params = np.zeros((count, PARAMS_WIDTH), dtype=np.float64)
+    table = _unpacked(colliders)
     data = ColliderData()
-    key_len = max([len(obj.keyframes) for obj in colliders] + [1])
-    keys = np.zeros((count, key_len, 7), dtype=np.float64)
-    key_count = np.zeros(count, dtype=np.int64)
-    pivot = np.zeros((count, 3), dtype=np.float64)
     for c, obj in enumerate(colliders):
-        module = _BY_TYPE[type(obj)]
-        kinds[c] = module.KIND
-        values = module.pack(obj, data)
-        params[c, : len(values)] = values
-        key_count[c] = len(obj.keyframes)
-        pivot[c] = obj.pivot
+        values = _BY_TYPE[type(obj)].pack(obj, data)
+        table.params[c, : len(values)] = values
+        table.pivot[c] = obj.pivot
         for k, key in enumerate(obj.keyframes):
-            keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
-    return _with_pointers(ColliderTable(kinds, params, data.array(), keys, key_count, pivot,
-                                        np.zeros((count, 2, POSE_WIDTH)),
-                                        np.ones(count, dtype=np.uint8)), points)
+            table.keys[c, k] = (key.time, *key.translation, *np.radians(key.rotation))
+    return _with_pointers(table._replace(data=data.array()), points)
 
 
 def stand_in_table(colliders: Sequence[object], points: int = 0) -> ColliderTable:
     """A table of the types of pack_colliders(colliders, points), its pointers the same,
     without packing anything (no mesh's distance grid is built): what the first run's
     helper compiles from while this process builds the grids (pipeline.warmup)."""
+    return _with_pointers(_unpacked(colliders), points)
+
+
+def _unpacked(colliders: Sequence[object]) -> ColliderTable:
+    """The table's arrays for `colliders`, their kinds and keyframe counts set, the rest
+    zero (data a single zero), without pointers."""
     count = len(colliders)
     key_len = max([len(obj.keyframes) for obj in colliders] + [1])
-    kinds = np.array([_BY_TYPE[type(obj)].KIND for obj in colliders], dtype=np.int64)
-    key_count = np.array([len(obj.keyframes) for obj in colliders], dtype=np.int64)
-    return _with_pointers(ColliderTable(
-        kinds, np.zeros((count, PARAMS_WIDTH)), np.zeros(1), np.zeros((count, key_len, 7)),
-        key_count, np.zeros((count, 3)), np.zeros((count, 2, POSE_WIDTH)),
-        np.ones(count, dtype=np.uint8)), points)
+    return ColliderTable(
+        np.array([_BY_TYPE[type(obj)].KIND for obj in colliders], dtype=np.int64),
+        np.zeros((count, PARAMS_WIDTH)), np.zeros(1), np.zeros((count, key_len, 7)),
+        np.array([len(obj.keyframes) for obj in colliders], dtype=np.int64),
+        np.zeros((count, 3)), np.zeros((count, 2, POSE_WIDTH)), np.ones(count, dtype=np.uint8))
 
 
 def _with_pointers(table: ColliderTable, points: int) -> ColliderTable:
