@@ -1,12 +1,19 @@
 """How far a coarser FEM grid lands from a fine one, on screen (docs/fidelity.md).
 
     python benchmarks/fem_grid.py [--grids 13,25,49,97] [--steps 160]
+    python benchmarks/fem_grid.py --calibrate [--seconds 3]
 
 For two FEM scenes (pinned2 held at two corners, swing held along its top edge): the same
 cloth at nested grids (n - 1 divides the finest's n - 1), each at `--steps` steps per frame
 with the drag rate held fixed, and the largest screen-space distance (the scene's camera,
 512x512) between each coarser grid's points and the same material points of the finest
 grid, every 0.5 s over 3 s. Prints a markdown table.
+
+`--calibrate`: the calibration of fidelity auto's grid pilot (pipeline.fem_grid) on
+scenes/fem_sheet.json (97x97) and the swing at 49x49: the file's grid and its halvings, each
+under fidelity auto at a quarter of a pixel (grid pilot off), and per grid the pilot's
+prediction of its error against the file's grid (from the first second, as the pilot has
+it) beside the largest error it actually reaches over the first second and over the shot.
 """
 from __future__ import annotations
 
@@ -55,14 +62,61 @@ def run(data: dict, seconds: float = 3.0):
     return out, sim
 
 
+def calibrate(name: str, overrides: list[str], seconds: float) -> None:
+    """Print the pilot's predictions against the errors reached (module docstring)."""
+    from pipeline.fem_grid import Spline, coarse_pins, coarse_scene, decide
+
+    scene = pipeline.load_scene(ROOT / "scenes" / f"{name}.json", overrides + [
+        "simulation.fidelity=auto", "simulation.tolerance_px=0.25"])
+    c = scene.cloth
+    sizes = [(c.num_width_points, c.num_height_points)]
+    for _ in range(3):
+        w, h = sizes[-1]
+        sizes.append(((w - 1) // 2 + 1, (h - 1) // 2 + 1))
+    sims = [pipeline.Simulation(coarse_scene(scene, w, h, coarse_pins(
+        c.pinned, *sizes[0], w, h)), shot_seconds=seconds, grid=False) for w, h in sizes]
+    camera = sims[0].stepper.camera
+    fps = scene.simulation.frames_per_sec
+    at = [Spline(w, h, *sizes[-1]) for w, h in sizes]  # every grid at G3's points
+    neighbour = np.zeros((2, len(sizes) - 1))  # largest over the first second, the shot
+    to_file = np.zeros((2, len(sizes)))
+    for f in range(1, round(seconds * fps) + 1):
+        for sim in sims:
+            sim.advance(1)
+        x = [s(sim.positions) for s, sim in zip(at, sims)]
+        row = int(f > fps)
+        for k in range(len(sizes) - 1):
+            neighbour[row, k] = max(neighbour[row, k], screen_distance(camera, x[k], x[k + 1]))
+        for k in range(1, len(sizes)):
+            to_file[row, k] = max(to_file[row, k], screen_distance(camera, x[0], x[k]))
+    first, shot = neighbour[0], neighbour.max(axis=0)
+    ratio, predicted, _ = decide(first[2], first[1], 1.0)
+    print(f"{name} {sizes[0][0]}x{sizes[0][1]}: largest distance between neighbouring grids "
+          f"over 1 s {' '.join(f'{d:.2f}' for d in first)} px, over {seconds:g} s "
+          f"{' '.join(f'{d:.2f}' for d in shot)} px; ratio D32/D21 {ratio:.2f}")
+    print("| grid | predicted error (px) | error over 1 s (px) | error over the shot (px) |")
+    print("|---|---:|---:|---:|")
+    for k in range(1, len(sizes)):
+        print(f"| {sizes[k][0]}x{sizes[k][1]} | {predicted[k - 1]:.2f} | {to_file[0, k]:.2f} | "
+              f"{to_file.max(axis=0)[k]:.2f} |", flush=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--grids", default="13,25,49,97")
     ap.add_argument("--steps", type=int, default=160)
+    ap.add_argument("--calibrate", action="store_true")
+    ap.add_argument("--seconds", type=float, default=3.0)
     args = ap.parse_args(argv)
     import numba
 
     numba.set_num_threads(1)
+    if args.calibrate:
+        calibrate("fem_sheet", [], args.seconds)
+        calibrate("swing", ["cloth.num_width_points=49", "cloth.num_height_points=49",
+                            "cloth.pinned=" + json.dumps([[j, 48] for j in range(49)])],
+                  args.seconds)
+        return 0
     grids = sorted(int(g) for g in args.grids.split(","))
     finest = grids[-1]
     print("| scene (FEM) | grid | cell on screen | error vs finest, every 0.5 s (px) |")

@@ -38,6 +38,8 @@ that no point ends a step inside one. Then:
    and every point moving less than SLEEP_FRACTION of the tolerance per frame for
    SLEEP_TIME seconds, the cloth sleeps: later frames repeat it at no cost, until a
    keyframe starts.
+5. The FEM grid: the coarsest grid whose error on screen a pilot on coarser grids predicts
+   within the tolerance, drawn on the file's grid (pipeline.fem_grid; Simulation runs it).
 docs/fidelity.md has the calibration and the measured costs and errors.
 """
 from __future__ import annotations
@@ -108,11 +110,15 @@ class Plan:
     self_collision: str
     colliders: list[dict] = field(default_factory=list)
     sleeps: str = ""
-    predicted_cost: float = 1.0  # steps per frame against exact's, before sleeping
+    predicted_cost: float = 1.0  # steps (x points, on a coarse grid) per frame against exact's
     reasons: list[str] = field(default_factory=list)
     pilot: dict | None = None  # auto, classic model: the pilot's figures once it has run
     chaotic: bool = False  # auto, classic model with contact or gusts: the file's steps
-    grid: tuple[int, int] = (0, 0)  # points across and down: the file's (auto keeps it)
+    grid: tuple[int, int] = (0, 0)  # points across and down: the file's
+    #: auto, FEM: the grid pilot's figures (pipeline.fem_grid.GridChoice.as_dict), or why
+    #: there is no pilot (grid_reason)
+    grid_choice: dict | None = None
+    grid_reason: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -148,9 +154,7 @@ class Plan:
                            f"{self.steps_per_frame_start} (exact: {self.steps_per_frame_exact}),"
                            " chosen per frame by step doubling")
         if self.fidelity == "auto" and self.model == "fem":
-            out.append(f"FEM grid: the file's {self.grid[0]}x{self.grid[1]} (auto does not "
-                       "coarsen it: the measured error of coarser grids does not follow the "
-                       "screen size on every scene; docs/fidelity.md)")
+            out.append(self._grid_line())
         out.append(f"self-collision: {self.self_collision}")
         for c in self.colliders:
             out.append(f"collider {c['name']}: {c['status']}")
@@ -163,11 +167,39 @@ class Plan:
                        f"per frame over its {PILOT_SECONDS:g} s, plus its third run's where it "
                        "checks the convergence (the shot goes on from a pilot run where that "
                        "is cheaper); nothing while asleep")
+        elif self.fidelity == "auto" and self.grid_choice and self.grid_choice["chosen"]:
+            w, h = self.grid_choice["chosen"]
+            out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's (steps x points, on "
+                       f"the {w}x{h} grid) at the start (error estimates included), after the "
+                       "grid pilot; nothing while asleep")
         elif self.fidelity == "auto":
             out.append(f"predicted cost: {self.predicted_cost:.2f}x exact's steps at the start "
                        f"(error estimates included), nothing while asleep")
         out.extend(self.reasons)
         return out
+
+
+    def _grid_line(self) -> str:
+        from .fem_grid import GRID_TARGET, MAX_CELL_PX
+
+        file = f"{self.grid[0]}x{self.grid[1]}"
+        g = self.grid_choice
+        if g is None:
+            return f"FEM grid: the file's {file}, no grid pilot: {self.grid_reason}"
+        grids = "/".join(f"{w}x{h}" for w, h in g["grids"])
+        ratio = "inf" if g["ratio"] is None else f"{g['ratio']:.2f}"
+        head = (f"FEM grid, by a pilot of {g['seconds']:.3g} s on the coarser grids {grids} "
+                f"(screen distances {g['distance_px'][0]:.2g} and {g['distance_px'][1]:.2g} px, "
+                f"ratio {ratio})")
+        if not g["converges"]:
+            return f"{head}: the file's {file} (the grids do not converge on this scene)"
+        predicted = "/".join(f"{e:.2g}" for e in g["predicted_px"])
+        cells = "/".join(f"{c:.2g}" for c in g["cell_px"])
+        chosen = (f"{g['chosen'][0]}x{g['chosen'][1]} (the file's: {file}; frames drawn on the "
+                  "file's grid)" if g["chosen"] else f"the file's {file}")
+        return (f"{head}: predicted error against the file's grid {predicted} px, aim "
+                f"{GRID_TARGET:g} x tolerance; cells on screen {cells} px, at most "
+                f"{MAX_CELL_PX:g}: {chosen}")
 
 
 def metres_per_pixel(camera, points: np.ndarray) -> float:
@@ -240,6 +272,7 @@ class AutoStepper:
         self.adaptive = s.model != "classic"
         self.n_min = coarse if self.adaptive else max(2, self.floor)
         self.pilot: dict | None = None  # the classic pilot's figures, once it has run
+        self.grid = None  # the FEM grid pilot's figures (pipeline.fem_grid.GridChoice)
         #: the classic model's motion under contact or gusts depends on the step
         #: chaotically (docs/fidelity.md): no pilot there, the file's steps; a steady wind
         #: gets the pilot (whose third run, where it asks for more steps, checks that they
@@ -706,11 +739,14 @@ class AutoStepper:
                 "frames_simulated": len(self.steps_used), "frames_slept": self.slept,
                 "frames_redone": self.rejected, "steps_total": self.steps_total,
                 "self_collision_passes": int(counts[1]) if self.sim.system.self_collision else 0,
-                "steps_with_a_collider_skipped": int(counts[2]), "pilot": self.pilot}
+                "steps_with_a_collider_skipped": int(counts[2]), "pilot": self.pilot,
+                "grid": None if self.grid is None else self.grid.as_dict()}
 
     def summary_text(self) -> str:
         s = self.summary()
         pilot = "" if self.pilot is None else pilot_text(self.pilot) + ", "
+        if self.grid is not None:
+            pilot = self.grid.text() + ", " + pilot
         return (f"auto: {pilot}steps/frame {s['steps_per_frame_min']}/"
                 f"{s['steps_per_frame_median']:g}/"
                 f"{s['steps_per_frame_max']} (min/median/max), {s['frames_slept']} frames slept, "
@@ -781,7 +817,9 @@ def make_plan(sim) -> Plan:
                 steps_per_frame_start=s.steps_per_frame, steps_per_frame_max=s.steps_per_frame,
                 tolerance_px=None, metres_per_px=None, image_height=scene.render.height,
                 stability_limit_s=sim.dt_max, self_collision=self_collision,
-                colliders=colliders, grid=(sim.model.nw, sim.model.nh))
+                colliders=colliders, grid=(sim.model.nw, sim.model.nh),
+                grid_choice=None if sim.grid_choice is None else sim.grid_choice.as_dict(),
+                grid_reason=sim.grid_reason)
     if auto:
         st = sim.stepper
         plan.steps_per_frame_min, plan.steps_per_frame_start = st.n_min, st.n
@@ -789,6 +827,8 @@ def make_plan(sim) -> Plan:
         plan.metres_per_px = metres_per_pixel(st.camera, points)
         plan.pilot, plan.chaotic = st.pilot, st.chaotic and not st.adaptive
         plan.predicted_cost = (CHECK_COST if st.adaptive else 1.0) * st.n / s.steps_per_frame
+        if sim.coarse is not None:  # fewer points too
+            plan.predicted_cost *= sim.coarse.model.n / sim.model.n
         wake = wake_time(scene, 0.0)
         plan.sleeps = ("never: the gusts vary in time" if gusty(scene) else
                        "when at rest for " f"{SLEEP_TIME:g} s" + (

@@ -55,6 +55,10 @@ class Simulation:
     packed for the kernels), `positions` (N, 3) and `last_positions` (N, 3) views of the current
     state, `pinned` (N,) bool, `springs` (a, b, rest, type arrays in SPEC order), `step_count`,
     `time` (seconds simulated).
+
+    Under fidelity auto an FEM cloth may run on a coarser grid (pipeline.fem_grid): `coarse`
+    is then that grid's Simulation, whose `system`, state and `stepper` these are, and
+    `positions` are its positions carried to the file's grid (`model`): computed, not views.
     """
 
     def __init__(
@@ -64,12 +68,17 @@ class Simulation:
         initial_positions: np.ndarray | None = None,
         shot_seconds: float | None = None,
         prepare: Callable[[ClothModel, System], None] | None = None,
+        grid: bool = True,
     ) -> None:
-        """`shot_seconds`: how long the caller will simulate, if known (fidelity auto's pilot
-        on the classic model covers no more than that). `prepare`: called with the cloth
-        model and its System once they are built, before the stability limit and the
-        integrator use any kernel (a first run compiles them there: pipeline.warmup)."""
+        """`shot_seconds`: how long the caller will simulate, if known (fidelity auto's pilots
+        cover no more than that). `prepare`: called with the cloth model and its System once
+        they are built, before the stability limit and the integrator use any kernel (a
+        first run compiles them there: pipeline.warmup). `grid`: False keeps the file's FEM
+        grid under fidelity auto (no grid pilot)."""
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
+        #: fidelity auto, FEM: the coarse grid's Simulation where the shot runs on one
+        self.coarse: Simulation | None = None
+        self._on_file_grid = None
         self.model: ClothModel = cloth_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
         if prepare is not None:
@@ -95,21 +104,55 @@ class Simulation:
             self.stepper = AutoStepper(self, shot_seconds)
         elif self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
+        #: fidelity auto, FEM: the grid pilot's figures (pipeline.fem_grid.GridChoice) and
+        #: why there was none
+        self.grid_choice = None
+        self.grid_reason = ""
+        if auto and grid and self.model.fem is not None and initial_positions is None:
+            self._choose_grid(shot_seconds)
+
+    def _choose_grid(self, shot_seconds: float | None) -> None:
+        from .fem_grid import OnFileGrid, choose_grid
+
+        choice, coarse, self.grid_reason = choose_grid(self, shot_seconds,
+                                                       self.stepper.pilot_seconds)
+        self.grid_choice = self.stepper.grid = choice
+        if coarse is None:
+            return
+        self.coarse = coarse
+        self._on_file_grid = OnFileGrid(coarse.model, self.model, self.scene)
+        self._state, self.stepper = coarse._state, coarse.stepper
+        self.stepper.grid = choice
+        self.omega_max, self.dt_max = coarse.omega_max, coarse.dt_max
+        self.integrator, self.integrator_reasons = coarse.integrator, coarse.integrator_reasons
+
+    @property
+    def system(self) -> System:
+        return self._system if self.coarse is None else self.coarse.system
+
+    @system.setter
+    def system(self, system: System) -> None:
+        self._system = system
 
     # --- state -------------------------------------------------------------------------
     @property
     def positions(self) -> np.ndarray:
         """Current positions, (N, 3) view (row-major points)."""
+        if self._on_file_grid is not None:
+            return self._on_file_grid.positions(self._state.x.T, self.time)
         return self._state.x.T
 
     @property
     def last_positions(self) -> np.ndarray:
         """Positions one step ago, (N, 3) (Verlet state)."""
+        if self._on_file_grid is not None:
+            return self._on_file_grid.positions(self._state.last.T, self.time - self.dt)
         return self._state.last.T
 
     @property
     def velocities(self) -> np.ndarray:
-        return self._state.velocity(self.system).T
+        v = self._state.velocity(self.system).T
+        return v if self._on_file_grid is None else self._on_file_grid.velocities(v)
 
     @property
     def pinned(self) -> np.ndarray:

@@ -102,7 +102,7 @@ class System(NamedTuple):
 # of the README's warm run. A System's fields never change type, so the last few Systems
 # keep their type here (strong references: a NamedTuple takes no weak one).
 _SYSTEM_TYPES: dict[int, tuple[System, object]] = {}
-_SYSTEM_TYPES_KEPT = 4
+_SYSTEM_TYPES_KEPT = 16
 
 
 @typeof_impl.register(System)
