@@ -15,7 +15,8 @@ at most D21 (the distances shrink with the cell; a geometric extrapolation, D21 
 measured up to 1.9x short on a swinging sheet, whose finer grids converge more slowly), and
 the error of Gk against the file's grid as at most the sum of the distances from Gk down to
 it; the shot runs on the coarsest grid whose error that bounds by GRID_TARGET tolerances
-(none: the file's grid). The pilot's grids cost 1/8, 1/64 and 1/512 of the file's per
+(none: the file's grid) and whose cells are at most MAX_CELL_PX on screen (no pilot where
+even G1's are more at the start). The pilot's grids cost 1/8, 1/64 and 1/512 of the file's per
 simulated second (a quarter of the points per halving, each step twice as long: the
 stability limit follows the cell).
 
@@ -210,13 +211,18 @@ def choose_grid(sim, shot_seconds: float | None, pilot_seconds: float):
     grids, why = pilot_grids(scene)
     if not grids:
         return None, None, why
+    camera, c = sim.stepper.camera, scene.cloth
+    cell = [max(c.width / (cw - 1), c.height / (ch - 1)) for cw, ch, _ in grids]  # metres
+    start = cell[0] / metres_per_pixel(camera, sim.model.x0.T)
+    if start > MAX_CELL_PX:  # no grid could be chosen: no pilot
+        return None, None, (f"the {grids[0][0]}x{grids[0][1]} grid's cells would be "
+                            f"{start:.2g} px on screen at the start, more than {MAX_CELL_PX:g}")
     fps = scene.simulation.frames_per_sec
     frames = max(1, round(pilot_seconds * fps))
     runs = [Simulation(coarse_scene(scene, cw, ch, pins), shot_seconds=shot_seconds,
                        grid=False) for cw, ch, pins in grids]
     (w3, h3, _) = grids[-1]
     samplers = [Spline(cw, ch, w3, h3) for cw, ch, _ in grids[:-1]]
-    camera = sim.stepper.camera
     d32 = d21 = 0.0
     for _ in range(frames):
         try:
@@ -231,8 +237,7 @@ def choose_grid(sim, shot_seconds: float | None, pilot_seconds: float):
     # cells on screen where the cloth is nearest the camera, at the start or the pilot's end
     mpp = min(metres_per_pixel(camera, sim.model.x0.T),
               metres_per_pixel(camera, runs[-1].positions))
-    c = scene.cloth
-    cell_px = tuple(max(c.width / (cw - 1), c.height / (ch - 1)) / mpp for cw, ch, _ in grids)
+    cell_px = tuple(m / mpp for m in cell)
     ratio, predicted, k = decide(d32, d21, sim.stepper.tolerance, cell_px)
     chosen = None if k is None else grids[k][:2]
     choice = GridChoice(file=(scene.cloth.num_width_points, scene.cloth.num_height_points),

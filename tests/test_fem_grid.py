@@ -153,6 +153,17 @@ def test_the_pilot_chooses_a_coarse_grid_that_stays_within_the_tolerance(sheet):
         f": {choice.chosen[0]}x{choice.chosen[1]}, steps/frame" in text)
 
 
+def test_no_pilot_where_even_the_finest_coarse_grid_would_show_its_cells(sheet):
+    """Close to the camera the 29x29 grid's cells are more than MAX_CELL_PX on screen: no
+    grid could be chosen, so no pilot runs (and none of its cost)."""
+    close = {**sheet, "camera": {**sheet["camera"], "position": [0.5, 1.2, 2.0]}}
+    sim = Simulation(close, shot_seconds=1.0)
+    assert sim.grid_choice is None and sim.coarse is None
+    assert sim.grid_reason.startswith("the 29x29 grid's cells would be ")
+    assert sim.grid_reason.endswith(f" px on screen at the start, more than {MAX_CELL_PX:g}")
+    assert float(sim.grid_reason.split()[6]) > MAX_CELL_PX
+
+
 def test_the_grid_plan_is_deterministic(sheet):
     a, b = (Simulation(sheet, shot_seconds=1.0).plan.as_dict() for _ in range(2))
     assert a == b and a["grid_choice"]["chosen"] is not None
