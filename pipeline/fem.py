@@ -183,28 +183,28 @@ def lumped_masses(params: FemParams) -> np.ndarray:
 # --- 3-vectors as tuples (LLVM keeps them in registers) ---------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _comb(a, s, b, t):
     """s a + t b."""
     return (s * a[0] + t * b[0], s * a[1] + t * b[1], s * a[2] + t * b[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _scale(a, s):
     return (s * a[0], s * a[1], s * a[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _dot(a, b):
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
@@ -229,14 +229,14 @@ def _atan2(y, x):
 # --- one element (membrane: w_u, w_v; hinge: edge a-b, triangles (a, b, c), (b, a, d)) -----
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _deformation(x0, x1, x2, i00, i01, i10, i11):
     """(w_u, w_v) of the triangle at positions x0, x1, x2."""
     e1, e2 = _sub(x1, x0), _sub(x2, x0)
     return _comb(e1, i00, e2, i10), _comb(e1, i01, e2, i11)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _membrane_stress(wu, wv, ka, kb):
     """(dE/dw_u, dE/dw_v) with ka = a k_stretch, kb = a k_shear."""
     lu, lv = math.sqrt(_dot(wu, wu)), math.sqrt(_dot(wv, wv))
@@ -246,7 +246,7 @@ def _membrane_stress(wu, wv, ka, kb):
     return _comb(wu, su, wv, s), _comb(wv, sv, wu, s)
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _stretch_hessian(w, dw, ka, filtered):
     """ka (alpha I + (1 - alpha) u u^T) dw, u = w / |w|, alpha = 1 - 1 / |w| (clamped at 0 if
     filtered): the derivative of ka (|w| - 1) u along dw."""
@@ -257,7 +257,7 @@ def _stretch_hessian(w, dw, ka, filtered):
     return _comb(dw, ka * alpha, u, ka * (1.0 - alpha) * _dot(u, dw))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _membrane_hessian(wu, wv, dwu, dwv, ka, kb, filtered):
     """Derivative of (dE/dw_u, dE/dw_v) along (dw_u, dw_v); filtered keeps its positive
     semi-definite part (compressed stretch loses its transverse term, shear its
@@ -270,7 +270,7 @@ def _membrane_hessian(wu, wv, dwu, dwv, ka, kb, filtered):
             (hv[0] + gv[0], hv[1] + gv[1], hv[2] + gv[2]))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _membrane_diagonal(w, other, ka, kb):
     """Diagonal of the filtered d^2 E / dw^2 (3 x 3) for w one of (w_u, w_v) and `other` the
     other: ka (alpha + (1 - alpha) u_axis^2) + kb other_axis^2, u = w / |w|, alpha =
@@ -284,7 +284,7 @@ def _membrane_diagonal(w, other, ka, kb):
             ka * (alpha + (1.0 - alpha) * u[2] * u[2]) + kb * other[2] * other[2])
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _normal_one(a, b, c):
     """Triangle 1 of a hinge: N1 = e x (c - a), t1 = (c - a) . e / |e|, |e|, 1 / |e| (0 for
     a zero edge); e = b - a."""
@@ -294,7 +294,7 @@ def _normal_one(a, b, c):
     return _cross(e, ca), _dot(ca, e) * il, length, il
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _normal_two(a, b, d, n1, length, il):
     """Triangle 2 of a hinge: N2 = (d - a) x e, t2 = (d - a) . e / |e|, and the dihedral angle
     theta = atan2(e^ . (N1 x N2), N1 . N2) = atan2(-|e| N1 . (d - a), N1 . N2)."""
@@ -303,7 +303,7 @@ def _normal_two(a, b, d, n1, length, il):
     return n2, _dot(da, e) * il, _atan2(-length * _dot(n1, da), _dot(n1, n2))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _hinge(a, b, c, d):
     """Dihedral angle theta, validity (no zero-length edge or zero-area triangle) and what
     the Hessian needs; the inverses are 0 for an invalid hinge, so its gradient is 0."""
@@ -316,14 +316,14 @@ def _hinge(a, b, c, d):
     return theta, ok, length, n1, n2, inv1, inv2, t1, t2
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _hinge_gradient(length, q1, q2, t1, t2):
     """d theta / d(a, b, c, d), q_k = N_k / |N_k|^2."""
     return (_comb(q1, length - t1, q2, length - t2), _comb(q1, t1, q2, t2),
             _scale(q1, -length), _scale(q2, -length))
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _hinge_gradient_derivative(a, b, c, d, ya, yb, yc, yd, length, n1, n2, inv1, inv2, t1,
                                t2):
     """Derivative of d theta / d(a, b, c, d) along the displacement (ya, yb, yc, yd)."""

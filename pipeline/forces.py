@@ -220,14 +220,14 @@ def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, g
     add_fem_forces(x, fem, f)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _gravity(mass, gravity, f):
     for a in range(3):
         for p in range(f.shape[1]):
             f[a, p] = mass[p] * gravity[a]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def external_force(x, v, t, mass, gravity, wind, wind_force, f):
     """f[:] = gravity and the scene's other forces, without the springs (for XPBD, which
     treats the springs as constraints)."""

@@ -70,7 +70,7 @@ def _slot(keys, slot_bucket, slot_generation, gen, nbuckets, bx, by, bz):
         s = (s + 1) & mask
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _box_coordinates(x, w, h, t, box):
     """box[:, p] = floor(x[:, p] / (w, h, t)): a vectorisable loop."""
     for a, size in ((0, w), (1, h), (2, t)):
@@ -79,7 +79,7 @@ def _box_coordinates(x, w, h, t, box):
             ba[p] = np.floor(xa[p] / size)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _range_of(values):
     """(lowest value, number of integers from lowest to highest) of integral floats."""
     low = high = values[0]
@@ -89,7 +89,7 @@ def _range_of(values):
     return low, high - low + 1.0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _number_boxes(box, bucket_of, cells):
     """bucket_of[p] = index of p's box in the dense grid of boxes the points span; returns the
     grid's cell count, or -1 (nothing written) when it exceeds `cells` or a box coordinate is
@@ -108,7 +108,7 @@ def _number_boxes(box, bucket_of, cells):
     return np.int64(span_x) * sy * sz
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _hash_boxes(box, bucket_of, keys, slot_bucket, slot_generation, generation):
     """bucket_of[p] = a number per distinct box (-1 for non-finite); returns the count."""
     generation[0] += 1
@@ -155,7 +155,7 @@ def _bin(x, w, h, t, scratch):
             xs[2, m] = x[2, p]
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _squared_distances(px, py, pz, xs, lo, hi, out):
     """out[i] = |p - xs[:, lo + i]|^2: a vectorisable loop over one box's members."""
     ax, ay, az = xs[0, lo:hi], xs[1, lo:hi], xs[2, lo:hi]

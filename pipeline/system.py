@@ -212,7 +212,7 @@ GUARD_FACTOR = 2.0
 # integrator's stepping kernel.
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def motion_summary(x, previous, x0, mass, g):
     """(all finite, sum over points of m |x - previous|^2, sum over points of m * the drop
     along g since t = 0) for the guard; `previous` is the state one step earlier, x0 the
@@ -230,7 +230,7 @@ def motion_summary(x, previous, x0, mass, g):
     return finite, moved_sq, drop / g_norm if g_norm > 0.0 else 0.0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def energy_guard(mv_sq_sum, mass_drop, g, total_mass, slack_speed):
     """Kinetic-energy bound of the divergence guard: returns (kinetic energy, bound) in J.
 
@@ -363,7 +363,7 @@ def _self_collision_pass(x, pinned, width, height, nw, nh, thickness, steps_per_
         self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def corrected_velocities(x, predicted, v, pinned, dt):
     """v += (x - predicted) / dt for every free point: the position passes' correction as a
     velocity change, on top of the integrator's own end-of-step velocity."""

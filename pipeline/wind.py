@@ -110,7 +110,7 @@ def max_wind_speed(wind) -> float:
             + math.sqrt(3.0 * GUST_MODES / WAVE_MEAN_SQUARE) * wind.gust)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _set_phases(w, t, o0, o1, o2):
     """w.phase = the phases of the modes at time t at the origin o."""
     md = w.modes
@@ -119,7 +119,7 @@ def _set_phases(w, t, o0, o1, o2):
         w.phase[k] = phase - np.floor(phase)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _mode_tuples(w):
     """The modes as tuples: values, not memory, so the per-point loop over the (unrolled)
     modes needs no aliasing checks and vectorises."""
@@ -147,7 +147,7 @@ def _gust(px, py, pz, modes):
     return gx, gy, gz
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _positions(x, lo, hi, point):
     """point[3:6, :hi - lo] = x - x[:, 0] at the points [lo, hi), float32."""
     m = hi - lo
@@ -157,7 +157,7 @@ def _positions(x, lo, hi, point):
             dst[i] = src[i] - oa
 
 
-@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST)
+@njit(cache=True, nogil=True, error_model="numpy", fastmath=_FAST, no_cpython_wrapper=True)
 def _relative(v, lo, hi, w, point):
     """point[0:3, :hi - lo] = v - air velocity at the points [lo, hi) (positions set)."""
     m = hi - lo

@@ -83,7 +83,7 @@ def light_terms(p, n, v, lp, li):
     return (li[0] * inv, li[1] * inv, li[2] * inv), max(0.0, dot(n, l)), max(0.0, dot(n, h))
 
 
-@njit(**STAGE)
+@njit(**STAGE, no_cpython_wrapper=True)
 def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp):
     """k_a I_a + k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p."""
     e, ndl, ndh = light_terms(p, n, v, lp, li)
@@ -93,7 +93,7 @@ def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp):
             ka * ia[2] + kd[2] * e[2] * ndl + spec * e[2])
 
 
-@njit(**STAGE)
+@njit(**STAGE, no_cpython_wrapper=True)
 def bump_normal(n0, t, v, uv, hmap, kh, kn):
     """SPEC 5 bump: TBN from the unflipped n0 and t, height = red channel of hmap,
     forward differences of one texel; the result gets the sign of the two-sided flip."""

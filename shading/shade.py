@@ -88,7 +88,7 @@ def put(f, y, x, c):
     f.out[y, x, 2] = int(math.floor(c[2] * inv * 255.0 + 0.5))
 
 
-@njit(**STAGE)
+@njit(**STAGE, no_cpython_wrapper=True)
 def begin_row(f, y):
     """Pixels [x0, x1) of output row y that have a written sample; every other pixel of
     the row is set to the background (as `put` would from aa x aa background samples)."""
@@ -124,7 +124,7 @@ def begin_row(f, y):
     return x0, x1
 
 
-@njit(**STAGE)
+@njit(**STAGE, no_cpython_wrapper=True)
 def fetch(f, s):
     """(p, n0, v, uv, t, kd) of the covered sample s (f.prim[s] >= 0)."""
     m = f.prim[s]

@@ -201,7 +201,7 @@ def cube_face_st(d):
     return 5, (-x / az + 1.0) * 0.5, (-y / az + 1.0) * 0.5
 
 
-@njit(**STAGE)
+@njit(**STAGE, no_cpython_wrapper=True)
 def sample_cube(cube, d):
     """Cube map (6, s, s, 3) along direction d: bilinear within the face, clamped."""
     if d[0] == 0.0 and d[1] == 0.0 and d[2] == 0.0:

@@ -64,7 +64,7 @@ class State(VelocityState):
         return advance(*self.arguments(system, steps, first_step))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _dot(a, b):
     total = 0.0
     for ax in range(3):
@@ -73,7 +73,7 @@ def _dot(a, b):
     return total
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _apply(x, y, out, pinned, mass, fem, springs, unit, alpha, buffer, mass_factor, h2,
            product, passes):
     """out = S ((1 + h gamma) M - h^2 K) y (S: zero on pinned points; K at x, by `product`:

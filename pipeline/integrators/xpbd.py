@@ -94,17 +94,17 @@ def solve_springs(x, lam, pinned, mass, springs, fem, dt2, iterations):
                 x[2, q] += wq * dl * uz
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _inverse_mass(pinned, mass, p):
     return 0.0 if pinned[p] else 1.0 / mass[p]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _point(x, p):
     return (x[0, p], x[1, p], x[2, p])
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _move(x, p, scale, g):
     """x_p += scale g."""
     x[0, p] += scale * g[0]
@@ -112,7 +112,7 @@ def _move(x, p, scale, g):
     x[2, p] += scale * g[2]
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _project(x, lam, row, p, c, compliance, p0, p1, p2, w0, w1, w2, g0, g1, g2):
     """One XPBD update of the constraint with value c and gradients g0, g1, g2 at the points
     p0, p1, p2 (inverse masses w0, w1, w2); compliance = alpha / dt^2."""
@@ -126,7 +126,7 @@ def _project(x, lam, row, p, c, compliance, p0, p1, p2, w0, w1, w2, g0, g1, g2):
     _move(x, p2, w2 * dl, g2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _triangle(x, lam, pinned, mass, fem, t, p, dt2):
     """The stretch and shear constraints of the triangle of kind t anchored at p."""
     area = fem.tri_area[t, p]
@@ -166,7 +166,7 @@ def _triangle(x, lam, pinned, mass, fem, t, p, dt2):
                  g0, g1, g2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _bend(x, lam, pinned, mass, fem, k, p, dt2):
     """The bending constraint C = theta of the hinge of kind k anchored at p."""
     factor = fem.edge_factor[k, p]
