@@ -523,6 +523,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     show = progress_enabled(args.quiet)
     timers.compile = compile_seconds
+    timers.simulate = sim.grid_seconds  # fidelity auto's FEM grid pilot, run while building
     # Render the initial state before simulating: a missing texture or a broken shader
     # fails now, not after the simulation (a framed shot's camera is known only after it:
     # a small frame then).

@@ -4,6 +4,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import time
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -104,12 +105,15 @@ class Simulation:
             self.stepper = AutoStepper(self, shot_seconds)
         elif self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
-        #: fidelity auto, FEM: the grid pilot's figures (pipeline.fem_grid.GridChoice) and
-        #: why there was none
+        #: fidelity auto, FEM: the grid pilot's figures (pipeline.fem_grid.GridChoice), why
+        #: there was none, and the wall seconds it took here (simulating, for `render`)
         self.grid_choice = None
         self.grid_reason = ""
+        self.grid_seconds = 0.0
         if auto and grid and self.model.fem is not None and initial_positions is None:
+            start = time.perf_counter()
             self._choose_grid(shot_seconds)
+            self.grid_seconds = time.perf_counter() - start
 
     def _choose_grid(self, shot_seconds: float | None) -> None:
         from .fem_grid import OnFileGrid, choose_grid

@@ -167,3 +167,18 @@ def test_no_pilot_where_even_the_finest_coarse_grid_would_show_its_cells(sheet):
 def test_the_grid_plan_is_deterministic(sheet):
     a, b = (Simulation(sheet, shot_seconds=1.0).plan.as_dict() for _ in range(2))
     assert a == b and a["grid_choice"]["chosen"] is not None
+
+
+def test_render_says_which_grid_it_ran_on(tmp_path, capsys):
+    """`render --fidelity auto` on the FEM sheet in a 32x32 image: the pilot covers the
+    shot (its last frame drawn at 10/60 s), every grid's cells are under a pixel, and the
+    summary names the grid."""
+    from pipeline.cli import main
+
+    out = tmp_path / "sheet.gif"
+    code = main([str(SCENES / "fem_sheet.json"), "--fidelity", "auto", "--duration", "0.2",
+                 "--size", "32x32", "--aa", "1", "--out", str(out)])
+    err = capsys.readouterr().err.splitlines()
+    assert code == 0 and out.stat().st_size > 0
+    assert err[-1].startswith("render: auto: grid pilot 49x49/25x25/13x13 over 0.167 s: ")
+    assert ": 13x13, steps/frame " in err[-1]
