@@ -70,7 +70,10 @@ def _outcode(x, y, z, w):
     return code
 
 
-@njit(cache=True, inline="always")
+# The setup's helpers below are kernels of their own, called (LLVM inlines them), not
+# inlined by numba, which types an inlined callee again at every call site: setup_triangles
+# compiles 0.3-0.7 s sooner, at the same speed (2026-11-27). The raster loop's stay inlined.
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _plane_dist(x, y, z, w, k):
     """Signed distance (>= 0 inside) of clip point (x, y, z, w) to clip plane k:
     0 near (z >= -w), 1..4 guard band x, y."""
@@ -85,7 +88,7 @@ def _plane_dist(x, y, z, w, k):
     return GUARD * w + y
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _window(c0, c1, c2, c3, W, H, vx, vy, vz, viw, i):
     """Window coordinates of clip point c into vertex slot i."""
     iw = 1.0 / c3
@@ -119,7 +122,7 @@ def project(pos, m, W, H, clip, vcode, vx, vy, vz, viw):
             _window(c0, c1, c2, c3, W, H, vx, vy, vz, viw, i)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _tri_box(W, H, ax, ay, bx, by, cx, cy):
     """(twice the signed area, x0, x1, y0, y1): the sample columns / rows whose centre
     (i*SUB + HALF) lies in the triangle's bounding box, clipped to the image; x0 > x1
@@ -138,11 +141,10 @@ def _tri_box(W, H, ax, ay, bx, by, cx, cy):
     return area, x0, x1, y0, y1
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _put_tri(m, a, b, c, flag, src, area, x0, x1, y0, y1, pv, pflag, psrc, pbox, band_start):
     """Store triangle (a, b, c) (vertex slots) as primitive m, clockwise on screen, and
-    count it in its bands. (Straight-line code: numba then keeps no reference counting
-    of the arrays in the caller's loop.)"""
+    count it in its bands."""
     pv[m, 0] = a
     pv[m, 1] = b if area > 0 else c
     pv[m, 2] = c if area > 0 else b
@@ -254,7 +256,7 @@ def setup_triangles(tris, clip, vcode, nv, W, H, vx, vy, vz, viw, wb, pv, pflag,
     return m, e
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _line_end(a0, a1, a2, a3, b0, b1, b2, b3, s, W, H):
     """Window (x, y) fixed point, z and 1/w of the point at parameter s on clip a->b."""
     cx = a0 + s * (b0 - a0)
