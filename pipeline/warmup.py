@@ -115,8 +115,11 @@ COMPILE_SECONDS = {"pipeline.colliders:collide_all": 0.55,
                    "pipeline.integrators.rk4:_stage": 0.65, "pipeline.integrators.rk4:_finish": 0.4}
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
-# (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION
-RENDER_SECONDS = 9.5
+# (2026-11-25, four cold README runs traced), so 9.5 s before CONTENTION; 8.5 since the
+# fragment stage's helpers have no Python entry and the setup's are not inlined (63aa934,
+# 1198cfe): at 9.5, two traced cold README runs ended here 0.96 and 0.64 s after the helper;
+# at 8.5, three runs 0.96 and 0.87 s after it and 1.05 s before it (2026-11-27, 10:12-10:14)
+RENDER_SECONDS = 8.5
 # Each integrator's stepping kernel (its passes called through pointers), 3.4 s before its
 # update went through a pointer too (State.update, rk4's State.stage and .finish: jobs of
 # their own); since, alternately with the tree before, Verlet's 2.45-3.20 s against
