@@ -18,7 +18,8 @@ it; the shot runs on the coarsest grid whose error that bounds by GRID_TARGET to
 (none: the file's grid) and whose cells are at most MAX_CELL_PX on screen (no pilot where
 even G1's are more at the start). The pilot's grids cost 1/8, 1/64 and 1/512 of the file's per
 simulated second (a quarter of the points per halving, each step twice as long: the
-stability limit follows the cell).
+stability limit follows the cell), and the shot goes on from the chosen grid's run (its
+frames replayed).
 
 A coarse grid is only possible where every pin of the file's grid is a pin of it: a pin on
 one of its grid points, or between two pinned points of one of its rows or columns (a
@@ -36,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .fidelity import metres_per_pixel, screen_distance
+from .fidelity import REPLAY_BYTES, REPLAYED, metres_per_pixel, screen_distance
 from .scene import Scene
 
 HALVINGS = (1, 2, 3)  # the pilot's grids: the file's grid halved this many times
@@ -223,11 +224,17 @@ def choose_grid(sim, shot_seconds: float | None, pilot_seconds: float):
                        grid=False) for cw, ch, pins in grids]
     (w3, h3, _) = grids[-1]
     samplers = [Spline(cw, ch, w3, h3) for cw, ch, _ in grids[:-1]]
+    # each run's state after each frame, to hand the chosen run over to the shot
+    keep = frames * sum(getattr(r._state, k).nbytes for r in runs for k in REPLAYED) \
+        <= REPLAY_BYTES
+    records: list[list] = [[] for _ in runs]
     d32 = d21 = 0.0
     for _ in range(frames):
         try:
-            for run in runs:
+            for run, kept in zip(runs, records):
                 run.advance(1)
+                if keep:
+                    kept.append({k: getattr(run._state, k).copy() for k in REPLAYED})
         except DivergenceError as err:
             return None, None, f"the pilot's {run.model.nw}x{run.model.nh} grid diverged ({err})"
         g1, g2 = (f(r.positions) for f, r in zip(samplers, runs))
@@ -247,6 +254,9 @@ def choose_grid(sim, shot_seconds: float | None, pilot_seconds: float):
                         pilot_steps=[r.stepper.steps_total for r in runs])
     if chosen is None:
         return choice, None, ""
+    if keep:  # the shot goes on from the pilot's run, its frames replayed
+        runs[k].stepper.replay_from_start(records[k])
+        return choice, runs[k], ""
     cw, ch, pins = grids[k]
     return choice, Simulation(coarse_scene(scene, cw, ch, pins), shot_seconds=shot_seconds,
                               grid=False), ""

@@ -280,8 +280,8 @@ class AutoStepper:
         self.chaotic = bool(scene.colliders or sim.system.self_collision or gusty(scene))
         self.shot_seconds = shot_seconds
         self.pilot_seconds = min(PILOT_SECONDS, shot_seconds or PILOT_SECONDS)
-        #: (steps per frame, per-frame states, end state) of the pilot run the shot goes on
-        #: from, while its frames are replayed
+        #: (steps per frame (or a list per frame), per-frame states, end state) of the pilot
+        #: run the shot goes on from, while its frames are replayed
         self.replay: tuple | None = None
         self.replay_first = 0  # the frame the replayed run starts at
         self.n = max(self.n_min, s.steps_per_frame)
@@ -638,9 +638,17 @@ class AutoStepper:
         return worst, kept, ({n: (records[k], states[k]) for k, n in enumerate(levels)}
                              if keep else {})
 
+    def replay_from_start(self, records: list) -> None:
+        """Go back to frame 0, replay `records` (the REPLAYED state after each frame this
+        stepper has run, from the start), then go on from where it is: pipeline.fem_grid
+        hands a pilot grid's run over to the shot so."""
+        self.replay = (self.steps_used, records, self._save())
+        self.replay_first = self.frame = self.slept = 0
+        self.steps_used, self.history, self.asleep = [], [], False
+
     def _replay_frame(self) -> None:
         """The next frame of the pilot run the shot goes on from, as that run left it."""
-        n, records, end = self.replay
+        n, records, end = self.replay  # n: steps per frame, or a list of them per frame
         state, k = self.sim._state, self.frame - self.replay_first
         start = state.x.T.copy()
         for key in REPLAYED:
@@ -648,7 +656,7 @@ class AutoStepper:
         if k + 1 == len(records):
             self._restore(end)
             self.replay = None
-        self.steps_used.append(n)
+        self.steps_used.append(n[k] if isinstance(n, list) else n)
         self.frame += 1
         self._after_frame(start)
         if self.asleep:  # asleep here, as a shot started again at n would be: stay here

@@ -182,3 +182,24 @@ def test_render_says_which_grid_it_ran_on(tmp_path, capsys):
     assert code == 0 and out.stat().st_size > 0
     assert err[-1].startswith("render: auto: grid pilot 49x49/25x25/13x13 over 0.167 s: ")
     assert ": 13x13, steps/frame " in err[-1]
+
+
+def test_the_shot_goes_on_from_the_pilots_run_bit_for_bit(sheet):
+    """The chosen grid's pilot run is handed over: its frames replayed, then stepped on; the
+    same states, steps and times as the same grid's Simulation from t = 0, frame by frame,
+    through the pilot's second and half a second past it."""
+    from pipeline.fem_grid import coarse_scene
+
+    auto = Simulation(sheet, shot_seconds=1.5)
+    assert auto.stepper.replay is not None and auto.stepper.frame == 0  # handed over
+    w, h = auto.grid_choice.chosen
+    scene = load_scene(sheet)
+    fresh = Simulation(coarse_scene(scene, w, h, coarse_pins(scene.cloth.pinned, 57, 57, w, h)),
+                       shot_seconds=1.5, grid=False)
+    for _ in range(90):
+        auto.advance(1)
+        fresh.advance(1)
+        assert np.array_equal(auto._state.x, fresh._state.x)
+        assert np.array_equal(auto._state.last, fresh._state.last)
+        assert auto.time == fresh.time
+    assert auto.stepper.steps_used == fresh.stepper.steps_used
