@@ -38,7 +38,7 @@ that no point ends a step inside one. Then:
    and every point moving less than SLEEP_FRACTION of the tolerance per frame for
    SLEEP_TIME seconds, the cloth sleeps: later frames repeat it at no cost, until a
    keyframe starts.
-5. The FEM grid: the coarsest grid whose error on screen a pilot on coarser grids predicts
+5. The FEM grid: the coarsest grid whose error on screen a pilot on coarser grids bounds
    within the tolerance, drawn on the file's grid (pipeline.fem_grid; Simulation runs it).
 docs/fidelity.md has the calibration and the measured costs and errors.
 """
@@ -178,8 +178,8 @@ class Plan:
         out.extend(self.reasons)
         return out
 
-
     def _grid_line(self) -> str:
+        """The plan's line on the FEM grid (fidelity auto)."""
         from .fem_grid import GRID_TARGET, MAX_CELL_PX
 
         file = f"{self.grid[0]}x{self.grid[1]}"
