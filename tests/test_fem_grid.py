@@ -1,6 +1,6 @@
 """fidelity auto's FEM grid (pipeline.fem_grid): the spline that carries a coarse grid's
-positions to the file's grid, the pins a coarse grid can hold, and the grid pilot's choice
-on a sheet that converges under refinement and on one that does not."""
+positions to the file's grid, the pins a coarse grid can hold, the decision from the
+pilot's distances, and the grid pilot on a sheet that converges under refinement."""
 from __future__ import annotations
 
 import json
@@ -13,8 +13,8 @@ from pipeline import Simulation
 from pipeline.fem_grid import (GRID_CONVERGENCE, GRID_TARGET, MAX_CELL_PX, OnFileGrid, Spline,
                                catmull_rom, coarse_pins, decide, pilot_grids)
 from pipeline.fidelity import screen_distance
-from pipeline.scene import load_scene
 from pipeline.model import build_model
+from pipeline.scene import load_scene
 
 
 def test_the_spline_interpolates_and_reproduces_quadratics_inside():
