@@ -64,15 +64,13 @@ def run(data: dict, seconds: float = 3.0):
 
 def calibrate(name: str, overrides: list[str], seconds: float) -> None:
     """Print the pilot's predictions against the errors reached (module docstring)."""
-    from pipeline.fem_grid import Spline, coarse_pins, coarse_scene, decide
+    from pipeline.fem_grid import Spline, coarse_pins, coarse_scene, coarse_size, decide
 
     scene = pipeline.load_scene(ROOT / "scenes" / f"{name}.json", overrides + [
         "simulation.fidelity=auto", "simulation.tolerance_px=0.25"])
     c = scene.cloth
-    sizes = [(c.num_width_points, c.num_height_points)]
-    for _ in range(3):
-        w, h = sizes[-1]
-        sizes.append(((w - 1) // 2 + 1, (h - 1) // 2 + 1))
+    sizes = [(coarse_size(c.num_width_points, k), coarse_size(c.num_height_points, k))
+             for k in range(4)]
     sims = [pipeline.Simulation(coarse_scene(scene, w, h, coarse_pins(
         c.pinned, *sizes[0], w, h)), shot_seconds=seconds, grid=False) for w, h in sizes]
     camera = sims[0].stepper.camera

@@ -140,24 +140,29 @@ class GridChoice:
         return self.ratio >= GRID_CONVERGENCE
 
     def text(self) -> str:
-        grids = "/".join(f"{w}x{h}" for w, h in self.grids)
-        head = (f"grid pilot {grids} over {self.seconds:.3g} s: distances "
-                f"{self.distance_px[0]:.2g}/{self.distance_px[1]:.2g} px")
-        if not self.converges:
-            return f"{head}, ratio {self.ratio:.2f} < {GRID_CONVERGENCE:g} (not converging): " \
-                   f"the file's {self.file[0]}x{self.file[1]}"
-        predicted = "/".join(f"{e:.2g}" for e in self.predicted_px)
-        cells = "/".join(f"{c:.2g}" for c in self.cell_px)
-        grid = (f"{self.chosen[0]}x{self.chosen[1]}" if self.chosen else
-                f"the file's {self.file[0]}x{self.file[1]}")
-        return (f"{head}, ratio {self.ratio:.2f}, predicted error {predicted} px (aim: "
-                f"{GRID_TARGET:g} x tolerance), cells {cells} px (at most {MAX_CELL_PX:g}): "
-                f"{grid}")
+        return grid_text(self.as_dict())
 
     def as_dict(self) -> dict:
         """As JSON has it (ratio None: the grids agree to the pixel, D21 = 0)."""
         ratio = self.ratio if math.isfinite(self.ratio) else None
         return dataclasses.asdict(self) | {"ratio": ratio, "converges": self.converges}
+
+
+def grid_text(g: dict) -> str:
+    """The grid pilot's figures in a few words, from GridChoice.as_dict (the run's summary
+    and `render plan`)."""
+    grids = "/".join(f"{w}x{h}" for w, h in g["grids"])
+    ratio = "inf" if g["ratio"] is None else f"{g['ratio']:.2f}"
+    head = (f"grid pilot {grids} over {g['seconds']:.3g} s: distances "
+            f"{g['distance_px'][0]:.2g}/{g['distance_px'][1]:.2g} px")
+    file = f"the file's {g['file'][0]}x{g['file'][1]}"
+    if not g["converges"]:
+        return f"{head}, ratio {ratio} < {GRID_CONVERGENCE:g} (not converging): {file}"
+    predicted = "/".join(f"{e:.2g}" for e in g["predicted_px"])
+    cells = "/".join(f"{c:.2g}" for c in g["cell_px"])
+    grid = f"{g['chosen'][0]}x{g['chosen'][1]}" if g["chosen"] else file
+    return (f"{head}, ratio {ratio}, predicted error {predicted} px (aim: {GRID_TARGET:g} x "
+            f"tolerance), cells {cells} px (at most {MAX_CELL_PX:g}): {grid}")
 
 
 def pilot_grids(scene: Scene) -> tuple[list[tuple[int, int, tuple]], str]:

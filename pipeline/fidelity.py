@@ -180,26 +180,14 @@ class Plan:
 
     def _grid_line(self) -> str:
         """The plan's line on the FEM grid (fidelity auto)."""
-        from .fem_grid import GRID_TARGET, MAX_CELL_PX
+        from .fem_grid import grid_text
 
-        file = f"{self.grid[0]}x{self.grid[1]}"
         g = self.grid_choice
         if g is None:
-            return f"FEM grid: the file's {file}, no grid pilot: {self.grid_reason}"
-        grids = "/".join(f"{w}x{h}" for w, h in g["grids"])
-        ratio = "inf" if g["ratio"] is None else f"{g['ratio']:.2f}"
-        head = (f"FEM grid, by a pilot of {g['seconds']:.3g} s on the coarser grids {grids} "
-                f"(screen distances {g['distance_px'][0]:.2g} and {g['distance_px'][1]:.2g} px, "
-                f"ratio {ratio})")
-        if not g["converges"]:
-            return f"{head}: the file's {file} (the grids do not converge on this scene)"
-        predicted = "/".join(f"{e:.2g}" for e in g["predicted_px"])
-        cells = "/".join(f"{c:.2g}" for c in g["cell_px"])
-        chosen = (f"{g['chosen'][0]}x{g['chosen'][1]} (the file's: {file}; frames drawn on the "
-                  "file's grid)" if g["chosen"] else f"the file's {file}")
-        return (f"{head}: predicted error against the file's grid {predicted} px, aim "
-                f"{GRID_TARGET:g} x tolerance; cells on screen {cells} px, at most "
-                f"{MAX_CELL_PX:g}: {chosen}")
+            return (f"FEM grid: the file's {self.grid[0]}x{self.grid[1]}, no grid pilot: "
+                    f"{self.grid_reason}")
+        drawn = " (frames drawn on the file's grid)" if g["chosen"] else ""
+        return f"FEM grid by a {grid_text(g)}{drawn}"
 
 
 def metres_per_pixel(camera, points: np.ndarray) -> float:

@@ -120,15 +120,14 @@ class Simulation:
 
         choice, coarse, self.grid_reason = choose_grid(self, shot_seconds,
                                                        self.stepper.pilot_seconds)
+        if coarse is not None:
+            self.coarse = coarse
+            self._on_file_grid = OnFileGrid(coarse.model, self.model, self.scene)
+            self._state, self.stepper = coarse._state, coarse.stepper
+            self.omega_max, self.dt_max = coarse.omega_max, coarse.dt_max
+            self.integrator, self.integrator_reasons = (coarse.integrator,
+                                                        coarse.integrator_reasons)
         self.grid_choice = self.stepper.grid = choice
-        if coarse is None:
-            return
-        self.coarse = coarse
-        self._on_file_grid = OnFileGrid(coarse.model, self.model, self.scene)
-        self._state, self.stepper = coarse._state, coarse.stepper
-        self.stepper.grid = choice
-        self.omega_max, self.dt_max = coarse.omega_max, coarse.dt_max
-        self.integrator, self.integrator_reasons = coarse.integrator, coarse.integrator_reasons
 
     @property
     def system(self) -> System:
