@@ -69,7 +69,7 @@ def load() -> str:
 
 def run_batch(args, scenes, options) -> float:
     """Run the batch; the mean seconds a scene took where it ran (its task's own time)."""
-    from pipeline import batch
+    from pipeline.cli import batch
 
     results = [r for _, r in batch.run_batch(args, scenes, options)]
     assert all(r.status == "ok" for r in results), [r.message for r in results]
@@ -77,7 +77,7 @@ def run_batch(args, scenes, options) -> float:
 
 
 def batch_figures(folder: Path, address: str, pids: list[int], rounds: int) -> None:
-    from pipeline import batch
+    from pipeline.cli import batch
 
     base = json.loads((ROOT / "scenes" / "sphere.json").read_text())
     scenes = []
@@ -149,16 +149,18 @@ def long_render(folder: Path, address: str, pids: list[int], rounds: int) -> Non
     import numpy as np
 
     from pipeline import cli
-    from pipeline.frames import render_frame
-    from pipeline.outputs import FolderWriter
+    from pipeline.cli.render import nearest_sim_frames, output_times
+    from pipeline.run.frames import render_frame
+    from pipeline.run.outputs import FolderWriter
     from pipeline.scene import load_scene
-    from pipeline.simulation import Simulation, numba_threads
+    from pipeline.simulation import Simulation
+    from clothjit import numba_threads
 
     scene_path = ROOT / "scenes" / "sphere.json"
     w, h, aa, fps, seconds = 1920, 1080, 4, 30.0, 1.0
     scene = load_scene(scene_path)
-    times = cli.output_times(round(seconds * fps), fps)
-    sim_frames = cli.nearest_sim_frames(times, float(scene.simulation.frames_per_sec))
+    times = output_times(round(seconds * fps), fps)
+    sim_frames = nearest_sim_frames(times, float(scene.simulation.frames_per_sec))
     best = {"simulate": [], "render": [], "encode": []}
     with numba_threads(1):
         for _ in range(rounds):

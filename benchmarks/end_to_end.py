@@ -94,8 +94,8 @@ def end_to_end(args) -> None:
 
 def render_frames(scene_path: str, shader: str, n: int, size: int) -> list[np.ndarray]:
     from pipeline import Simulation, load_scene
-    from pipeline.cli import nearest_sim_frames, output_times
-    from pipeline.frames import render_frame
+    from pipeline.cli.render import nearest_sim_frames, output_times
+    from pipeline.run.frames import render_frame
 
     scene = load_scene(scene_path)
     sim = Simulation(scene)
@@ -130,7 +130,7 @@ def gif_frames(path: Path) -> list[np.ndarray]:
 
 
 def palette_study(args) -> None:
-    from pipeline.outputs import GifWriter
+    from pipeline.run.outputs import GifWriter
 
     tmp = Path(tempfile.mkdtemp(prefix="palette-"))
     for shader in args.shaders:

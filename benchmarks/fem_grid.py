@@ -9,7 +9,7 @@ with the drag rate held fixed, and the largest screen-space distance (the scene'
 512x512) between each coarser grid's points and the same material points of the finest
 grid, every 0.5 s over 3 s. Prints a markdown table.
 
-`--calibrate`: the calibration of fidelity auto's grid pilot (pipeline.fem_grid) on
+`--calibrate`: the calibration of fidelity auto's grid pilot (pipeline.fidelity.fem_grid) on
 scenes/fem_sheet.json (97x97) and the swing at 49x49: the file's grid and its halvings, each
 under fidelity auto at a quarter of a pixel (grid pilot off), and per grid the pilot's
 prediction of its error against the file's grid (from the first second, as the pilot has
@@ -28,8 +28,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import pipeline  # noqa: E402
-from pipeline.fidelity import metres_per_pixel, screen_distance  # noqa: E402
-from pipeline.frames import default_camera  # noqa: E402
+from pipeline.fidelity.controller import metres_per_pixel, screen_distance
+from pipeline.view.framing import default_camera
 
 #: scene file, pins of an n x n grid, the FEM overrides of the classic file
 SCENES = {
@@ -64,7 +64,7 @@ def run(data: dict, seconds: float = 3.0):
 
 def calibrate(name: str, overrides: list[str], seconds: float) -> None:
     """Print the pilot's predictions against the errors reached (module docstring)."""
-    from pipeline.fem_grid import Spline, coarse_pins, coarse_scene, coarse_size, decide
+    from pipeline.fidelity.fem_grid import Spline, coarse_pins, coarse_scene, coarse_size, decide
 
     scene = pipeline.load_scene(ROOT / "scenes" / f"{name}.json", overrides + [
         "simulation.fidelity=auto", "simulation.tolerance_px=0.25"])

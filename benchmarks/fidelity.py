@@ -26,8 +26,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 import pipeline  # noqa: E402
-from pipeline.fidelity import screen_distance  # noqa: E402
-from pipeline.frames import default_camera  # noqa: E402
+from pipeline.fidelity.controller import screen_distance
+from pipeline.view.framing import default_camera
 
 #: scenes whose motion does not depend chaotically on contact, and their overrides
 NON_CHAOTIC = {"pinned2": [], "pinned4": [], "flag_breeze": [], "swing": [], "fem_sheet": []}

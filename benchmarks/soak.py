@@ -42,9 +42,10 @@ def run_one(scene_file: str, integrator: str, seconds: float) -> dict:
     """Simulate one scene with one integrator; the measurements as a dict."""
     import numpy as np
 
-    from pipeline.overlap import project_out, still_table
+    from pipeline.physics.overlap import project_out, still_table
     from pipeline.scene import load_scene
-    from pipeline.simulation import DivergenceError, Simulation
+    from pipeline.physics.errors import DivergenceError
+    from pipeline.simulation import Simulation
 
     scene = load_scene(scene_file, [f"simulation.integrator={integrator}"])
     t0 = time.perf_counter()

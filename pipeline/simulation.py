@@ -1,29 +1,22 @@
 """Running a scene: the `Simulation` object and `simulate()`."""
 from __future__ import annotations
 
-import contextlib
 import math
 import os
 import time
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from .integrators import integrator_module
-from .model import ClothModel, build_model
-from .overlap import resolve_start_inside
-from .scene import Scene, load_scene
-from .system import System, build_system, stability_limit
+from pipeline.physics.integrators import integrator_module
+from pipeline.physics.model import ClothModel, build_model
+from pipeline.physics.overlap import resolve_start_inside
+from pipeline.physics.system import System, build_system, stability_limit
+from pipeline.scene import Scene, load_scene
 
-
-class DivergenceError(RuntimeError):
-    """The simulation blew up; `str(err)` names the frame, step and quantity."""
-
-
-class StabilityWarning(UserWarning):
-    """The time step exceeds the explicit stability limit of the spring lattice."""
+from .physics.errors import DivergenceError, StabilityWarning
 
 
 def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> ClothModel:
@@ -35,20 +28,6 @@ def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> Cl
     return model
 
 
-@contextlib.contextmanager
-def numba_threads(n: int) -> Iterator[None]:
-    """Run this thread's numba kernels on `n` threads (at most NUMBA_NUM_THREADS) inside
-    the block; results do not depend on it (every parallel loop writes disjoint points)."""
-    import numba
-
-    before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(n, numba.config.NUMBA_NUM_THREADS)))
-    try:
-        yield
-    finally:
-        numba.set_num_threads(before)
-
-
 class Simulation:
     """A scene being simulated, stepped by hand or frame by frame.
 
@@ -57,7 +36,7 @@ class Simulation:
     state, `pinned` (N,) bool, `springs` (a, b, rest, type arrays in SPEC order), `step_count`,
     `time` (seconds simulated).
 
-    Under fidelity auto an FEM cloth may run on a coarser grid (pipeline.fem_grid): `coarse`
+    Under fidelity auto an FEM cloth may run on a coarser grid (pipeline.fidelity.fem_grid): `coarse`
     is then that grid's Simulation, whose `system`, state and `stepper` these are, and
     `positions` are its positions carried to the file's grid (`model`): computed, not views.
     """
@@ -74,7 +53,7 @@ class Simulation:
         """`shot_seconds`: how long the caller will simulate, if known (fidelity auto's pilots
         cover no more than that). `prepare`: called with the cloth model and its System once
         they are built, before the stability limit and the integrator use any kernel (a
-        first run compiles them there: pipeline.warmup). `grid`: False keeps the file's FEM
+        first run compiles them there: pipeline.run.warmup). `grid`: False keeps the file's FEM
         grid under fidelity auto (no grid pilot)."""
         self.scene = scene if isinstance(scene, Scene) else load_scene(scene)
         #: fidelity auto, FEM: the coarse grid's Simulation where the shot runs on one
@@ -89,7 +68,7 @@ class Simulation:
         auto = self.scene.simulation.fidelity == "auto"
         self.integrator_reasons: list[str] = []
         if auto:
-            from .fidelity import choose_integrator
+            from pipeline.fidelity.plan import choose_integrator
 
             self.integrator, self.integrator_reasons = choose_integrator(self.scene, self.dt_max)
             self.system = self.system._replace(colliders_last=True)
@@ -97,15 +76,15 @@ class Simulation:
         self._state = module.State(self.system)
         self.step_count = 0
         self.step_limited = module.CONDITIONALLY_STABLE
-        #: the frame-by-frame controller of fidelity "auto" (pipeline.fidelity), else None
+        #: the frame-by-frame controller of fidelity "auto" (pipeline.fidelity.controller), else None
         self.stepper = None
         if auto:
-            from .fidelity import AutoStepper
+            from pipeline.fidelity.controller import AutoStepper
 
             self.stepper = AutoStepper(self, shot_seconds)
         elif self.step_limited and self.system.dt > self.dt_max:
             warnings.warn(self.stability_message(), StabilityWarning, stacklevel=2)
-        #: fidelity auto, FEM: the grid pilot's figures (pipeline.fem_grid.GridChoice), why
+        #: fidelity auto, FEM: the grid pilot's figures (pipeline.fidelity.fem_grid.GridChoice), why
         #: there was none, and the wall seconds it took here (simulating, for `render`)
         self.grid_choice = None
         self.grid_reason = ""
@@ -116,7 +95,7 @@ class Simulation:
             self.grid_seconds = time.perf_counter() - start
 
     def _choose_grid(self, shot_seconds: float | None) -> None:
-        from .fem_grid import OnFileGrid, choose_grid
+        from pipeline.fidelity.fem_grid import OnFileGrid, choose_grid
 
         choice, coarse, self.grid_reason = choose_grid(self, shot_seconds,
                                                        self.stepper.pilot_seconds)
@@ -180,8 +159,8 @@ class Simulation:
 
     @property
     def plan(self):
-        """What will be modelled and why (pipeline.fidelity.Plan)."""
-        from .fidelity import make_plan
+        """What will be modelled and why (pipeline.fidelity.plan.Plan)."""
+        from pipeline.fidelity.plan import make_plan
 
         return make_plan(self)
 

@@ -20,7 +20,7 @@ Writes renders/<scene>_<shader>.gif (the same GIF writer as `render`) and render
 Each scene is simulated once; its frames are then drawn with every shader. The output frame
 at time t = k / fps shows the simulator frame nearest to t, and keyframed colliders are drawn
 at that frame's time, and a scene with no camera is framed over the whole GIF
-(pipeline.framing), exactly as `render` does, so `render scenes/<scene>.json --shader
+(pipeline.view.framing), exactly as `render` does, so `render scenes/<scene>.json --shader
 <shader> --duration <d> --fps 20 --size <n>x<n> --aa 1 --out x.gif` produces the same GIF.
 The total is checked against a budget (12 MB) so the committed gallery stays small.
 """
@@ -58,10 +58,10 @@ BUDGET = 12 * 2**20
 def main(argv=None) -> int:
     import shading
     from pipeline import Simulation, load_scene
-    from pipeline.cli import nearest_sim_frames, output_times
-    from pipeline.frames import render_frame
-    from pipeline.framing import frame_shot
-    from pipeline.outputs import GifWriter
+    from pipeline.cli.render import nearest_sim_frames, output_times
+    from pipeline.run.frames import render_frame
+    from pipeline.view.framing import frame_shot
+    from pipeline.run.outputs import GifWriter
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("names", nargs="*", metavar="SCENE",

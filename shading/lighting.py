@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .jit import STAGE, njit
+from clothjit import STAGE, njit
 
 from .textures import bilinear
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from .jit import njit, read_only
+from clothjit import njit, read_only
 
 CLOTH_COLOUR = (1.0, 1.0, 1.0)
 SPHERE_COLOUR = (1.0, 1.0, 1.0)

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from .jit import njit
+from clothjit import njit
 
 SUB = 256  # sub-pixel precision (8 bits)
 HALF = SUB // 2

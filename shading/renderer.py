@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from .jit import njit
+from clothjit import njit
 
 from . import raster as R
 from .camera import Camera

@@ -45,7 +45,7 @@ import numpy as np
 from numba.core import types
 from numba.extending import overload, typeof_impl
 
-from .jit import STAGE, njit
+from clothjit import STAGE, njit
 
 from .lighting import normalize
 

@@ -11,7 +11,7 @@ import threading
 from pathlib import Path
 
 import numpy as np
-from .jit import STAGE, njit
+from clothjit import STAGE, njit
 
 CUBE_FACES = ("posx", "negx", "posy", "negy", "posz", "negz")
 DEFAULT_TEXTURE = "cloth.png"

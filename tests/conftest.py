@@ -185,7 +185,7 @@ def serial_numba():
     one thread is several times faster. Set CLOTH_TEST_THREADS to override."""
     import os
 
-    from pipeline.simulation import numba_threads
+    from clothjit import numba_threads
 
     with numba_threads(int(os.environ.get("CLOTH_TEST_THREADS", "1"))):
         yield

@@ -1,4 +1,4 @@
-"""The integrator bench (pipeline/bench.py) with both cloth models: the FEM path of every
+"""The integrator bench (pipeline/cli/bench.py) with both cloth models: the FEM path of every
 part (energy, probe, stability search, work-precision, charts, --models) on tiny grids and
 short times. The default end-to-end run (both models) is
 test_integrators.test_bench_writes_charts_and_csv.
@@ -14,12 +14,11 @@ import numba
 import numpy as np
 import pytest
 
-from pipeline.bench import (STRAIN_LIMIT, Run, is_stable, main, resized, scene_data,
-                            stability, with_model, with_stiffness, work_precision)
-from pipeline.fem import fem_energy
-from pipeline.forces import spring_energy
+from pipeline.cli.bench import STRAIN_LIMIT, Run, is_stable, main, resized, scene_data, stability, with_model, with_stiffness, work_precision
+from pipeline.physics.fem import fem_energy
+from pipeline.physics.forces import spring_energy
 from pipeline.scene import INTEGRATORS
-from pipeline.system import stability_limit
+from pipeline.physics.system import stability_limit
 
 from conftest import scene_path
 

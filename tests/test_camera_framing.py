@@ -1,5 +1,5 @@
 """The default camera (SPEC 4, issue 15): no `camera` frames the whole shot from the course
-direction (pipeline.framing); "course" is SPEC 4's camera exactly; an object is unchanged."""
+direction (pipeline.view.framing); "course" is SPEC 4's camera exactly; an object is unchanged."""
 from __future__ import annotations
 
 import json
@@ -9,10 +9,12 @@ import pytest
 from PIL import Image
 
 import shading
-from pipeline.cli import main, nearest_sim_frames, output_times
-from pipeline.framing import FLAT, MARGIN, NEAR_FRACTION, Framing, frame_shot, framed_points
-from pipeline.frames import default_camera, render_frame, render_params, scene_meshes
-from pipeline.model import build_model
+from pipeline.cli import main
+from pipeline.cli.render import nearest_sim_frames, output_times
+from pipeline.view.framing import FLAT, MARGIN, NEAR_FRACTION, Framing, frame_shot, framed_points
+from pipeline.view.framing import default_camera
+from pipeline.run.frames import render_frame, render_params, scene_meshes
+from pipeline.physics.model import build_model
 from pipeline.scene import load_scene
 from pipeline.simulation import simulate
 

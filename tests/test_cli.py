@@ -1,6 +1,6 @@
 """The `render` command end to end: in-process through main(argv), plus real subprocesses.
 
-The renderer (`pipeline.frames`, `shading`) may still be missing while it is written; the
+The renderer (`pipeline.run.frames`, `shading`) may still be missing while it is written; the
 `env` fixture then installs small stand-ins through monkeypatch, for these tests only.
 With the real modules present the same tests run against them.
 """
@@ -20,10 +20,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline import cli
 from pipeline.cli import main
 
 from conftest import child_env
+from pipeline.cli.messages import Errors
+from pipeline.cli.render import _pipeline_mode, _pipelined, nearest_sim_frames, output_times, queue_depth
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -78,7 +79,7 @@ def _fake_shading():
 def _fake_frames(shading):
     from pipeline.scene import Plane, Sphere
 
-    frames = types.ModuleType("pipeline.frames")
+    frames = types.ModuleType("pipeline.run.frames")
 
     def grid(nw, nh):
         tris = []
@@ -131,7 +132,7 @@ def env(monkeypatch):
     """'real' when the renderer is importable, else installs stand-ins ('fake')."""
     shading = _real("shading", ["SHADERS", "TextureError"])
     testing = _real("shading.testing", ["assert_image_close"])
-    frames = _real("pipeline.frames", ["render_frame", "scene_meshes"])
+    frames = _real("pipeline.run.frames", ["render_frame", "scene_meshes"])
     if shading and testing and frames:
         return "real"
     if not shading:
@@ -144,7 +145,7 @@ def env(monkeypatch):
         monkeypatch.setattr(shading, "testing", testing, raising=False)
     if not frames:
         frames = _fake_frames(shading)
-        monkeypatch.setitem(sys.modules, "pipeline.frames", frames)
+        monkeypatch.setitem(sys.modules, "pipeline.run.frames", frames)
     return "fake"
 
 
@@ -227,7 +228,7 @@ def test_png_last_and_folder(env, scene, tmp_path, capsys):
     # an existing folder is a folder output too, without the trailing '/'
     assert run(capsys, scene, "--out", folder, *FAST[:2], "--frames", "2", "-q")[0] == 0
     assert files(folder) == ["frame_00000.png", "frame_00001.png"]
-    # a two-frame shot is framed on its own (pipeline.framing): its --at 0 PNG is frame 0
+    # a two-frame shot is framed on its own (pipeline.view.framing): its --at 0 PNG is frame 0
     assert run(capsys, scene, "--out", png, *FAST[:2], "--frames", "2", "--at", "0", "-q"
                )[0] == 0
     np.testing.assert_array_equal(np.asarray(Image.open(folder / "frame_00000.png")),
@@ -293,8 +294,8 @@ def test_auto_pipeline_mode(monkeypatch, layer, framed, expected):
     import numba
 
     monkeypatch.setattr(numba, "threading_layer", lambda: layer)
-    assert cli._pipeline_mode("auto", framed=framed) == expected
-    assert cli._pipeline_mode("split", framed=framed) == ("serial" if layer == "workqueue"
+    assert _pipeline_mode("auto", framed=framed) == expected
+    assert _pipeline_mode("split", framed=framed) == ("serial" if layer == "workqueue"
                                                           else "split")
 
 
@@ -312,11 +313,11 @@ def test_split_pipeline_draws_on_every_core_once_every_frame_is_simulated():
 
     before = numba.get_num_threads()
     # 10 frames through a 4-frame queue: the first is drawn while 5 are still to come
-    cli._pipelined(((k, None) for k in range(10)), consume, depth=4, threads_per_stage=1)
+    _pipelined(((k, None) for k in range(10)), consume, depth=4, threads_per_stage=1)
     assert seen[0] == 1 and seen[-1] == numba.config.NUMBA_NUM_THREADS
     assert numba.get_num_threads() == before
     # the simulation may run 32 MB of positions ahead (the README's cloth: 559 frames)
-    assert cli.queue_depth(2500 * 3 * 8) == 559 and cli.queue_depth(1 << 30) == 4
+    assert queue_depth(2500 * 3 * 8) == 559 and queue_depth(1 << 30) == 4
 
 
 def test_summary_line(env, scene, tmp_path, capsys):
@@ -363,10 +364,10 @@ def test_version(capsys):
 
 
 def test_the_cli_shader_list_is_the_renderers():
-    from pipeline.cli import _shader_names
+    from pipeline.cli.options import shader_names
     from shading import REGISTRY
 
-    assert sorted(_shader_names()) == sorted(REGISTRY)
+    assert sorted(shader_names()) == sorted(REGISTRY)
 
 
 @pytest.mark.parametrize("flag", ["--help", "--version"])
@@ -521,7 +522,7 @@ def test_interrupt_leaves_nothing(env, scene, tmp_path, capsys, monkeypatch, out
 
 
 def test_render_failure_in_worker(env, scene, tmp_path, capsys, monkeypatch):
-    frames = sys.modules.get("pipeline.frames") or importlib.import_module("pipeline.frames")
+    frames = sys.modules.get("pipeline.run.frames") or importlib.import_module("pipeline.run.frames")
     real = frames.render_frame
     calls = {"n": 0}
 
@@ -540,7 +541,8 @@ def test_render_failure_in_worker(env, scene, tmp_path, capsys, monkeypatch):
 
 
 def test_divergence(env, scene, tmp_path, capsys, monkeypatch):
-    from pipeline.simulation import DivergenceError, Simulation
+    from pipeline.physics.errors import DivergenceError
+    from pipeline.simulation import Simulation
 
     def advance(self, frames=1):
         raise DivergenceError("simulation diverged at frame 3, step 7 of 30 (t = 0.03 s): "
@@ -595,10 +597,10 @@ def test_check_size_mismatch(env, scene, tmp_path, capsys):
 
 
 def test_nearest_sim_frames():
-    times = cli.output_times(6, 25)
-    assert cli.nearest_sim_frames(times, 90) == [0, 4, 7, 11, 14, 18]
-    assert cli.nearest_sim_frames(cli.output_times(4, 30), 90) == [0, 3, 6, 9]
-    assert cli.nearest_sim_frames([0.5 / 90], 90) == [1]  # ties go to the later frame
+    times = output_times(6, 25)
+    assert nearest_sim_frames(times, 90) == [0, 4, 7, 11, 14, 18]
+    assert nearest_sim_frames(output_times(4, 30), 90) == [0, 3, 6, 9]
+    assert nearest_sim_frames([0.5 / 90], 90) == [1]  # ties go to the later frame
 
 
 # ---------------------------------------------------------------- real subprocesses
@@ -677,7 +679,7 @@ def test_bars_show_on_a_terminal_that_reports_no_width():
     0 columns: tqdm, left to follow that width, drew nothing at all."""
     leader, follower = os.openpty()  # 0 x 0 until someone sets its size
     try:
-        code = ("from pipeline.progress import bar, counter\n"
+        code = ("from pipeline.run.progress import bar, counter\n"
                 "b = bar(3, 'compile', 'kernel', True); b.update(3); b.close()\n"
                 "c = counter('compile', 'kernel', True); c.update(2); c.close()\n")
         subprocess.run([sys.executable, "-c", code], stderr=follower, env=child_env(),
@@ -706,14 +708,13 @@ def test_a_message_under_a_bar_starts_on_a_cleared_line(monkeypatch):
     """A message said while a bar is on screen (a stability warning during the first run's
     compile) blanks the bar's line first and draws the bar again below: printed as is, it
     went on after the bar ("... 12/12 [00:18<00:00, 1.59s/kernel]render: warning: ...")."""
-    from pipeline import cli
-    from pipeline.progress import bar
+    from pipeline.run.progress import bar
 
     tty = _TTY()
     monkeypatch.setattr(sys, "stderr", tty)
     kernels = bar(5, "compile", "kernel", True)
     kernels.update(2)
-    cli._Errors(sys.stderr, quiet=False, debug=False).warn("a warning")
+    Errors(sys.stderr, quiet=False, debug=False).warn("a warning")
     kernels.close()
     text = tty.buf.getvalue()
     before, after = text.split("render: warning: a warning\n")

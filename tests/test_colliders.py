@@ -8,7 +8,7 @@ import pytest
 
 from conftest import cloth_dict, scene_dict
 from pipeline import Simulation, simulate
-from pipeline.colliders import collide_all, euler_matrix, pack_colliders, pose_at
+from pipeline.physics.colliders import collide_all, euler_matrix, pack_colliders, pose_at
 from pipeline.scene import Box, Keyframe, Plane, Sphere, load_scene
 
 
@@ -173,7 +173,7 @@ def test_the_parallel_loop_over_the_points_moves_them_as_the_serial_one():
     """A cloth of PARALLEL_POINTS points or more goes through the colliders in parallel
     chunks, a smaller one in one call: the same positions, bit for bit (each point meets the
     colliders on its own), for points inside, on and outside a moving box and a sphere."""
-    from pipeline.forces import PARALLEL_POINTS
+    from pipeline.physics.forces import PARALLEL_POINTS
 
     colliders = [Sphere((0.1, 0.0, 0.0), 0.5, friction=0.3),
                  Box((0.0, 0.2, 0.0), (0.6, 0.3, 0.4), 0.2, (0, 20, 10),

@@ -24,8 +24,7 @@ import pytest
 from conftest import child_env, cloth_dict, process_alive, scene_dict
 from distributed import Client, LocalCluster
 
-from pipeline import batch, report
-from pipeline.cli import main
+from pipeline.cli import batch, main, report
 
 SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    steps_per_frame=10, spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
@@ -150,7 +149,7 @@ def test_batch_outputs_equal_one_process_renders_and_failures_are_rows(dask, tmp
                      "--duration", "0.5", "-q"]) == 0
         assert (out / f"{name}.gif").read_bytes() == ref.read_bytes()
     # every worker took the numba cache lock (the plugin)
-    assert set(dask[1].run(lambda: __import__("pipeline.compile_lock").compile_lock._installed
+    assert set(dask[1].run(lambda: __import__("clothjit.compile_lock").compile_lock._installed
                            ).values()) == {True}
 
 
@@ -304,7 +303,7 @@ def test_sigterm_cancels_the_local_cluster_and_leaves_nothing(tmp_path):
 
 def test_without_cluster_flags_distributed_is_never_imported(tmp_path):
     scene = write_scene(tmp_path)
-    code = ("import sys; from pipeline.cli import main; from pipeline import batch; "
+    code = ("import sys; from pipeline.cli import main; from pipeline.cli import batch; "
             f"assert main([{str(scene)!r}, '--out', {str(tmp_path / 'x.gif')!r}, '-q', "
             "'--size', '16x16', '--duration', '0.1']) == 0; "
             f"assert batch.main([{str(scene)!r}, '--out-dir', {str(tmp_path / 'o')!r}, "
@@ -324,7 +323,7 @@ def test_compiling_waits_for_another_process_holding_the_cache_lock(tmp_path):
 
     import numba
 
-    from pipeline import compile_lock
+    from clothjit import compile_lock
 
     compile_lock.install()
     numba.njit(lambda x: x + 1)(1)  # numba's compiler warmed up: a compile takes < 1.5 s

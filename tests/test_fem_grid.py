@@ -1,4 +1,4 @@
-"""fidelity auto's FEM grid (pipeline.fem_grid): the spline that carries a coarse grid's
+"""fidelity auto's FEM grid (pipeline.fidelity.fem_grid): the spline that carries a coarse grid's
 positions to the file's grid, the pins a coarse grid can hold, the decision from the
 pilot's distances, and the grid pilot on a sheet that converges under refinement."""
 from __future__ import annotations
@@ -10,10 +10,9 @@ import pytest
 
 from conftest import SCENES
 from pipeline import Simulation
-from pipeline.fem_grid import (GRID_CONVERGENCE, GRID_TARGET, MAX_CELL_PX, OnFileGrid, Spline,
-                               catmull_rom, coarse_pins, decide, pilot_grids)
-from pipeline.fidelity import screen_distance
-from pipeline.model import build_model
+from pipeline.fidelity.fem_grid import GRID_CONVERGENCE, GRID_TARGET, MAX_CELL_PX, OnFileGrid, Spline, catmull_rom, coarse_pins, decide, pilot_grids
+from pipeline.fidelity.controller import screen_distance
+from pipeline.physics.model import build_model
 from pipeline.scene import load_scene
 
 
@@ -188,7 +187,7 @@ def test_the_shot_goes_on_from_the_pilots_run_bit_for_bit(sheet):
     """The chosen grid's pilot run is handed over: its frames replayed, then stepped on; the
     same states, steps and times as the same grid's Simulation from t = 0, frame by frame,
     through the pilot's second and half a second past it."""
-    from pipeline.fem_grid import coarse_scene
+    from pipeline.fidelity.fem_grid import coarse_scene
 
     auto = Simulation(sheet, shot_seconds=1.5)
     assert auto.stepper.replay is not None and auto.stepper.frame == 0  # handed over

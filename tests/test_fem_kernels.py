@@ -1,4 +1,4 @@
-"""The finite-element cloth kernels (pipeline/fem.py) against finite differences of the
+"""The finite-element cloth kernels (pipeline/physics/fem.py) against finite differences of the
 energy, closed-form energies of simple deformations, and dense linear algebra.
 
 Every expected value comes from outside the kernel under test: a central difference of
@@ -14,7 +14,7 @@ import numba
 import numpy as np
 import pytest
 
-from pipeline import fem
+from pipeline.physics import fem
 
 # (k_stretch, k_shear, k_bend) of the four energy combinations
 STRETCH, SHEAR, BEND = (120.0, 0.0, 0.0), (0.0, 45.0, 0.0), (0.0, 0.0, 0.35)

@@ -7,8 +7,8 @@ import pytest
 
 from conftest import cloth_dict, scene_dict, scene_path
 from pipeline import Simulation, load_scene
-from pipeline.forces import elastic_energy, total_force_now
-from pipeline.simulation import DivergenceError, StabilityWarning
+from pipeline.physics.forces import elastic_energy, total_force_now
+from pipeline.physics.errors import DivergenceError, StabilityWarning
 
 FREE_INTEGRATORS = ("verlet", "euler", "symplectic-euler", "rk4", "implicit-euler")
 

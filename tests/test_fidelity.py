@@ -1,4 +1,4 @@
-"""fidelity auto (pipeline.fidelity, pipeline.reach): the error controller against a closed
+"""fidelity auto (pipeline.fidelity.controller, pipeline.physics.reach): the error controller against a closed
 form, pass skipping bit-identical to running the passes, sleep and wake, clean contacts, a
 stiff cloth exact cannot run, the plan."""
 from __future__ import annotations
@@ -11,12 +11,13 @@ import numpy as np
 import pytest
 
 import pipeline
-from pipeline import cli, fidelity
-from pipeline.colliders import euler_matrix
-from pipeline.fidelity import screen_distance
-from pipeline.simulation import StabilityWarning
+from pipeline.physics.colliders import euler_matrix
+from pipeline.fidelity import controller
+from pipeline.fidelity.controller import screen_distance
+from pipeline.physics.errors import StabilityWarning
 
 from conftest import cloth_dict, scene_dict
+from pipeline.cli import main
 
 pytestmark = pytest.mark.usefixtures("serial_numba")
 
@@ -185,7 +186,7 @@ def test_a_cloth_too_large_to_keep_its_pilot_runs_starts_again(monkeypatch):
     kept = pipeline.Simulation(auto(corner_hung(12), 0.1), shot_seconds=1.5)
     run_frames(kept, 1)
     assert kept.stepper.pilot["reused"]
-    monkeypatch.setattr(fidelity, "REPLAY_BYTES", 1000)  # under one frame of this cloth
+    monkeypatch.setattr(controller, "REPLAY_BYTES", 1000)  # under one frame of this cloth
     again = pipeline.Simulation(auto(corner_hung(12), 0.1), shot_seconds=1.5)
     frames = run_frames(again, 135)
     pilot = again.stepper.pilot
@@ -389,20 +390,20 @@ def test_plan_is_deterministic_and_says_what_is_modelled(capsys):
 def test_render_plan_command(tmp_path, capsys):
     path = tmp_path / "scene.json"
     path.write_text(json.dumps(scene_dict(cloth_dict(8, 8))))
-    assert cli.main(["plan", str(path), "--fidelity", "auto", "--tolerance", "2", "--json"]) == 0
+    assert main(["plan", str(path), "--fidelity", "auto", "--tolerance", "2", "--json"]) == 0
     plan = json.loads(capsys.readouterr().out)
     assert plan["tolerance_px"] == 2.0 and plan["fidelity"] == "auto"
-    assert cli.main(["plan", str(path)]) == 0
+    assert main(["plan", str(path)]) == 0
     assert capsys.readouterr().out.startswith("fidelity exact")
-    assert cli.main(["plan", str(tmp_path / "missing.json")]) == 2
-    assert cli.main(["plan", str(path), "--tolerance", "-1"]) == 2
+    assert main(["plan", str(tmp_path / "missing.json")]) == 2
+    assert main(["plan", str(path), "--tolerance", "-1"]) == 2
 
 
 def test_render_summary_says_what_auto_used(tmp_path, capsys):
     path = tmp_path / "scene.json"
     path.write_text(json.dumps(scene_dict(cloth_dict(8, 8))))
     out = tmp_path / "x.npz"
-    assert cli.main([str(path), "--fidelity", "auto", "--export-npz", str(out),
+    assert main([str(path), "--fidelity", "auto", "--export-npz", str(out),
                      "--frames", "5"]) == 0
     err = capsys.readouterr().err
     # the shot: 5 frames at 30/s, sim frames 0..14 at 90/s; a free fall is exact at any step,

@@ -1,4 +1,4 @@
-"""numba's inliner with one copy of a callee's scope per inlining (shading.jit._InlinerCopies):
+"""numba's inliner with one copy of a callee's scope per inlining (clothjit._InlinerCopies):
 the same machine code as numba's own, the scope copied once instead of once per block, and
 nothing of it loaded by a run that only loads kernels from the cache."""
 from __future__ import annotations
@@ -14,8 +14,8 @@ from conftest import child_env
 _NESTED = '''
 import copy, re, sys
 import numpy as np
-import shading.jit as jit
-from shading.jit import njit
+import clothjit as jit
+from clothjit import njit
 
 assert "numba.core.inline_closurecall" not in sys.modules  # loaded on the first compile
 
@@ -107,7 +107,7 @@ def test_blocks_of_one_inlining_share_one_copy_of_the_scope():
     from numba.core import ir
     from numba.core.compiler import run_frontend
 
-    import shading.jit as jit
+    import clothjit as jit
 
     def branches(a, b):
         if a > b:

@@ -18,11 +18,11 @@ import numpy as np
 import pytest
 
 from pipeline import load_scene
-from pipeline.bench import Run, is_stable, resized, scene_data
-from pipeline.integrators import state_class
+from pipeline.cli.bench import Run, is_stable, resized, scene_data
+from pipeline.physics.integrators import state_class
 from pipeline.scene import INTEGRATORS
 from pipeline.simulation import Simulation
-from pipeline.system import stability_limit
+from pipeline.physics.system import stability_limit
 
 from conftest import cloth_dict, scene_dict, scene_path
 
@@ -47,7 +47,7 @@ def one_thread():
 
 def test_bench_writes_charts_and_csv(tmp_path):
     pytest.importorskip("matplotlib")
-    from pipeline.bench import AUTO_TOLERANCES, main
+    from pipeline.cli.bench import AUTO_TOLERANCES, main
 
     out = tmp_path / "bench"
     assert main([str(scene_path("pinned2")), "--out", str(out), "--grid", "6",
@@ -73,7 +73,7 @@ def test_bench_writes_charts_and_csv(tmp_path):
 def test_every_integrator_has_a_module_behind_the_same_interface():
     assert set(EXPECTED_ORDER) == set(INTEGRATORS)
     for name in INTEGRATORS:
-        module = importlib.import_module("pipeline.integrators." + name.replace("-", "_"))
+        module = importlib.import_module("pipeline.physics.integrators." + name.replace("-", "_"))
         assert module.NAME == name
         assert state_class(name) is module.State
     with pytest.raises(ValueError, match="unknown integrator"):

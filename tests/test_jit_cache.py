@@ -1,5 +1,5 @@
 """numba's on-disk cache: its index stays right when processes save into it at once
-(shading.jit), a new process loads every renderer kernel from it, and loading leaves
+(clothjit), a new process loads every renderer kernel from it, and loading leaves
 numba's compiler registries alone until something compiles."""
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ SAVES = 150
 
 
 def _save_many(folder: str, worker: int, start) -> None:
-    import shading.jit  # noqa: F401  (installs the locked save)
+    import clothjit  # noqa: F401  (installs the locked save)
     from numba.core.caching import IndexDataCacheFile
 
     cache = IndexDataCacheFile(folder, "f-1.py311", source_stamp=("stamp", 1))
@@ -27,7 +27,7 @@ def _save_many(folder: str, worker: int, start) -> None:
 
 
 def _saved(folder: str) -> dict:
-    import shading.jit  # noqa: F401
+    import clothjit  # noqa: F401
     from numba.core.caching import IndexDataCacheFile
 
     cache = IndexDataCacheFile(folder, "f-1.py311", source_stamp=("stamp", 1))
@@ -89,7 +89,7 @@ def test_new_process_loads_every_kernel_from_the_disk_cache():
 
 
 _NESTED = """
-from shading.jit import njit, prange
+from clothjit import njit, prange
 
 
 @njit(cache=True, parallel=True, nogil=True, no_cpython_wrapper=True)
@@ -112,7 +112,7 @@ def second(x):
 def test_a_kernel_compiled_over_a_cached_parallel_kernel_loads_in_a_new_process(tmp_path):
     """numba#8578: `second`, compiled while `parallel_add` came from the cache, is cached
     without the hook that starts numba's threads; a new process loading it first crashed
-    (segfault) until shading.jit started the threads on import. Each call a new process
+    (segfault) until clothjit started the threads on import. Each call a new process
     on one cache, as three `render` runs are."""
     (tmp_path / "nested_kernels.py").write_text(_NESTED)
     env = child_env(NUMBA_CACHE_DIR=str(tmp_path / "cache"))
@@ -128,7 +128,7 @@ def test_a_kernel_compiled_over_a_cached_parallel_kernel_loads_in_a_new_process(
 _POINTER = """
 import pickle, sys
 import numpy as np
-from shading.jit import KernelPointer, njit, prange
+from clothjit import KernelPointer, njit, prange
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -186,7 +186,7 @@ def test_an_absent_kernel_pointer_has_the_present_ones_type_and_is_never_compile
     to the kernel, so its caller compiles once for both; the kernel is not compiled for it,
     and a pickled one (sent to the compile helper, a Dask worker) stays absent."""
     import numpy as np
-    from shading.jit import KernelPointer, njit
+    from clothjit import KernelPointer, njit
 
     add_one = njit(nogil=True, no_cpython_wrapper=True, pointer=True)(_add_one)
     call_if = njit(_call_if)
@@ -207,7 +207,7 @@ def test_only_pointer_kernels_get_a_c_wrapper():
     declared pointer=True: the others compile without it, and a KernelPointer to one is
     refused with a message naming it."""
     import numpy as np
-    from shading.jit import KernelPointer, njit
+    from clothjit import KernelPointer, njit
 
     x = np.zeros(2)
     plain = njit(nogil=True)(_add_one)
@@ -223,7 +223,7 @@ def test_only_pointer_kernels_get_a_c_wrapper():
 _LOAD_THEN_COMPILE = """
 import sys
 import numpy as np
-from shading.jit import njit
+from clothjit import njit
 
 
 @njit(cache=True)
@@ -246,7 +246,7 @@ else:
 
 
 def test_a_process_loads_from_the_cache_then_compiles(tmp_path):
-    """Loading a kernel from the cache skips numba's registry refresh (shading.jit) but sets
+    """Loading a kernel from the cache skips numba's registry refresh (clothjit) but sets
     up the runtime, so a loaded kernel that allocates runs; a kernel compiled later in the
     same process, calling it, compiles and runs (the registries load then)."""
     (tmp_path / "load_then_compile.py").write_text(_LOAD_THEN_COMPILE)
@@ -264,7 +264,7 @@ def test_a_process_loads_from_the_cache_then_compiles(tmp_path):
 _COMPILE_WITHOUT_SCIPY_LINALG = """
 import sys
 import numpy as np
-from shading.jit import njit
+from clothjit import njit
 
 first = njit(lambda x: x + 1)(1)  # numba's first compile: it imports numba.np.arraymath
 import numba.np.arraymath
@@ -278,7 +278,7 @@ print(first, before, numba.np.arraymath._HAVE_BLAS, "scipy.linalg" in sys.module
 
 def test_a_compile_imports_scipy_linalg_only_for_a_kernel_that_calls_blas():
     """numba's first compile in a process imports numba.np.arraymath, whose BLAS check
-    imports scipy.linalg (0.3 s); shading.jit skips that check (BLAS counted as there), and
+    imports scipy.linalg (0.3 s); clothjit skips that check (BLAS counted as there), and
     a kernel calling np.dot still gets numba's check, scipy.linalg, and the right product."""
     run = subprocess.run([sys.executable, "-c", _COMPILE_WITHOUT_SCIPY_LINALG],
                          capture_output=True, text=True, env=child_env(), timeout=300)
@@ -298,7 +298,7 @@ print(status, sorted(m for m in ("numba.np.arraymath", "numba.np.linalg", "scipy
 def test_a_warm_render_loads_no_compiler_registries(tmp_path):
     """The README's command, warm: every kernel comes from the cache, and neither numba's
     registries (numba.np.arraymath, numba.np.linalg) nor scipy.linalg, which their BLAS
-    check imports, are loaded (0.5-0.7 s of a warm run), nor numba's inliner (shading.jit
+    check imports, are loaded (0.5-0.7 s of a warm run), nor numba's inliner (clothjit
     patches it on the first compile only). Fails if a kernel of the command calls one of
     numba's numpy functions implemented there (np.sum, np.any: reach.py)."""
     args = [str(scene_path("sphere")), "--shader", "phong", "--out", str(tmp_path / "a.gif"),

@@ -7,9 +7,9 @@ from PIL import Image
 
 from conftest import cloth_dict, scene_dict
 from pipeline import Simulation
-from pipeline.model import build_model
+from pipeline.physics.model import build_model
 from pipeline.scene import load_scene
-from pipeline.system import stability_limit
+from pipeline.physics.system import stability_limit
 from test_stability import _stiffness_matrix
 
 

@@ -1,5 +1,5 @@
-"""The mesh collider kind on its own: its signed distance grid (pipeline.sdf) and its point
-projection (pipeline.colliders.mesh), against references that share nothing with them.
+"""The mesh collider kind on its own: its signed distance grid (pipeline.physics.sdf) and its point
+projection (pipeline.physics.colliders.mesh), against references that share nothing with them.
 
 Exact signed distances are brute force in numpy: the distance to each triangle is the
 distance to its plane where the foot falls inside it, else to its nearest edge segment (not
@@ -16,9 +16,9 @@ import pytest
 import trimesh
 from numba import njit
 
-from pipeline import sdf
-from pipeline.colliders import PARAMS_WIDTH, ColliderData, collide_all, pack_colliders
-from pipeline.colliders import mesh as mesh_kind
+from pipeline.physics import sdf
+from pipeline.physics.colliders import PARAMS_WIDTH, ColliderData, collide_all, pack_colliders
+from pipeline.physics.colliders import mesh as mesh_kind
 from pipeline.scene import MeshCollider, SceneError
 
 MESHES = Path(__file__).resolve().parents[1] / "scenes" / "meshes"

@@ -10,9 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline import outputs
-from pipeline.outputs import (FolderWriter, GifWriter, Mp4Writer, NpzWriter, ObjWriter,
-                              OutputError, PngWriter, classify_output, gif_delays_cs)
+from pipeline.run import outputs
+from pipeline.run.outputs import FolderWriter, GifWriter, Mp4Writer, NpzWriter, ObjWriter, OutputError, PngWriter, classify_output, gif_delays_cs
 
 
 def frames(n=6, h=40, w=48, seed=0):

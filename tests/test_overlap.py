@@ -1,5 +1,5 @@
 """Cloth points starting inside a collider are moved out before the first step, with a
-warning; scenes without such points are not touched (pipeline.overlap)."""
+warning; scenes without such points are not touched (pipeline.physics.overlap)."""
 from __future__ import annotations
 
 import warnings
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from conftest import COURSE_SCENES, SCENES, scene_path
-from pipeline.model import build_model
-from pipeline.overlap import StartInsideWarning, project_out, resolve_start_inside, still_table
+from pipeline.physics.model import build_model
+from pipeline.physics.overlap import StartInsideWarning, project_out, resolve_start_inside, still_table
 from pipeline.scene import load_scene
 from pipeline.simulation import Simulation
 

@@ -14,7 +14,7 @@ def test_every_package_directory_is_listed_in_pyproject():
     mapped = {name: ROOT / folder for name, folder in config.get("package-dir", {}).items()}
     found = {
         ".".join(init.parent.relative_to(ROOT).parts)
-        for top in ("pipeline", "shading")
+        for top in ("pipeline", "shading", "clothjit")
         for init in (ROOT / top).rglob("__init__.py")
         if "__pycache__" not in init.parts
     }

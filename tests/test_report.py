@@ -25,8 +25,11 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pipeline import report
-from pipeline.report import main
+from pipeline import cli
+from pipeline.cli import report, report_runs
+from pipeline.cli.report import main
+from pipeline.cli.report_plan import build_parser, parse_sweep, plan_report
+from pipeline.cli.report_runs import run_simulations
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -208,14 +211,14 @@ def test_no_temp_files_left(shader_report):
 
 def test_shader_all_is_the_same_as_shaders_all(tmp_path):
     scene = _write_scene(tmp_path)
-    args = report.build_parser().parse_args([str(scene), "--out", str(tmp_path / "x.html"),
+    args = build_parser().parse_args([str(scene), "--out", str(tmp_path / "x.html"),
                                              "--shader", "all"])
-    plan = report.plan_report(args)
+    plan = plan_report(args)
     assert plan.shaders == _all_shaders()
     assert plan.times == [0.0, 1.5, 3.0] and plan.sim_frames == [0, 135, 270]
-    args = report.build_parser().parse_args([str(scene), "--out", str(tmp_path / "x.html"),
+    args = build_parser().parse_args([str(scene), "--out", str(tmp_path / "x.html"),
                                              "--shader", "toon,phong", "--at", "2,0.5"])
-    plan = report.plan_report(args)
+    plan = plan_report(args)
     assert plan.shaders == ["toon", "phong"] and plan.times == [0.5, 2.0]
     assert list(tmp_path.iterdir()) == [scene]
 
@@ -225,7 +228,6 @@ def test_a_cell_is_the_frame_render_draws_at_that_time(tmp_path):
     # `render` frames the animation its flags make; framed over the shown frames alone, a
     # cloth lying on the floor at 1 s and 3 s put the eye at its height (edge on: every
     # cell was empty)
-    from pipeline import cli
 
     data = {k: v for k, v in SMALL.items() if k != "sphere"}
     data["plane"] = {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5}
@@ -301,13 +303,13 @@ def test_two_and_three_sweeps_grid_shapes(tmp_path):
 
 def test_parallel_sweep_equals_serial(tmp_path):
     scene = _write_scene(tmp_path)
-    args = report.build_parser().parse_args(
+    args = build_parser().parse_args(
         [str(scene), "--out", str(tmp_path / "p.html"), "--sweep", "cloth.ks=500,5000,80000",
          "--sweep", "simulation.steps_per_frame=1,10", "--at", "0.1,0.5", "--gif"])
-    plan = report.plan_report(args)
+    plan = plan_report(args)
     assert len(plan.variants) == 6
-    serial = report.run_simulations(plan, jobs=1)
-    parallel = report.run_simulations(plan, jobs=max(2, os.cpu_count() or 1))
+    serial = run_simulations(plan, jobs=1)
+    parallel = run_simulations(plan, jobs=max(2, os.cpu_count() or 1))
     assert any(r.error for r in serial)  # ks=80000 with one step per frame blows up
     for s, p in zip(serial, parallel):
         assert s.error == p.error
@@ -353,7 +355,7 @@ def test_diverging_variant_is_a_labelled_cell(tmp_path, capsys):
 
 
 def test_sweep_values_with_commas_inside_lists():
-    s = report.parse_sweep('sphere.0.origin=[0.5,0.2,0.5], [0.5,0.1,0.5],"a,b"')
+    s = parse_sweep('sphere.0.origin=[0.5,0.2,0.5], [0.5,0.1,0.5],"a,b"')
     assert s.key == "sphere.0.origin"
     assert s.values == ("[0.5,0.2,0.5]", "[0.5,0.1,0.5]", '"a,b"')
 
@@ -399,7 +401,7 @@ def test_bad_input_exits_2_before_any_work(tmp_path, capsys, monkeypatch, extra,
         raise AssertionError("work started on bad input")
 
     monkeypatch.setattr(report, "build_report", no_work)
-    monkeypatch.setattr(report, "simulate_variant", no_work)
+    monkeypatch.setattr(report_runs, "simulate_variant", no_work)
     rc = main([str(scene), "--out", str(tmp_path / "r.html")] + extra)
     err = capsys.readouterr().err
     assert rc == 2, err

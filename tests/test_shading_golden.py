@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 import shading
-from pipeline.frames import render_frame
-from pipeline.model import build_model
+from pipeline.run.frames import render_frame
+from pipeline.physics.model import build_model
 from pipeline.scene import load_scene
 from shading.testing import assert_image_close
 

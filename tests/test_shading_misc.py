@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 import shading
-from pipeline.frames import default_camera, scene_meshes
-from pipeline.model import build_model
+from pipeline.view.framing import default_camera
+from pipeline.run.frames import scene_meshes
+from pipeline.physics.model import build_model
 from pipeline.scene import load_scene
 from shading.testing import assert_image_close
 from pathlib import Path

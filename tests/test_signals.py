@@ -132,7 +132,7 @@ def test_sigterm_while_compiling(scene, tmp_path):
     proc = start_render([str(scene), "--out", str(tmp_path / "x.gif"), "--size", "32x32"],
                         NUMBA_CACHE_DIR=str(cache))
     wait_for(proc, lambda: any(p.is_file() for p in cache.rglob("*")), "compiling")
-    # a first run compiles in two processes (pipeline/warmup.py): the helper must go too
+    # a first run compiles in two processes (pipeline/run/warmup.py): the helper must go too
     helper = wait_for(proc, lambda: children(proc.pid), "the compile helper started")
     stop(proc, signal.SIGTERM, tmp_path, {"s.json"}, helper)
 
@@ -224,7 +224,7 @@ SIGNAL_IN_LLVM_CALLBACK = """
 import os, signal, sys, time
 from numba import njit
 from numba.core.codegen import CPUCodeLibrary
-from pipeline.signals import Terminated, exit_status, handled
+from pipeline.run.signals import Terminated, exit_status, handled
 
 hook = CPUCodeLibrary._object_getbuffer_hook.__func__
 sent = []
@@ -265,8 +265,8 @@ SIGNAL_WHILE_UNBOXING_A_POINTER = """
 import os, signal, sys, time
 import numpy as np
 import numba.core.serialize as serialize
-from shading.jit import KernelPointer, njit
-from pipeline.signals import Terminated, exit_status, handled
+from clothjit import KernelPointer, njit
+from pipeline.run.signals import Terminated, exit_status, handled
 
 SOURCE = '''
 def _numba_unpickle(address, bytedata, hashed):
@@ -345,7 +345,7 @@ def test_signal_while_unboxing_a_kernel_pointer_is_deferred(tmp_path, sig):
 # and the run went on to its end.
 SIGNAL_IN_A_WEAKREF_CALLBACK = """
 import os, signal, sys, time, weakref
-from pipeline.signals import Terminated, exit_status, handled
+from pipeline.run.signals import Terminated, exit_status, handled
 
 
 class Thing:

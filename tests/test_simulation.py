@@ -15,9 +15,9 @@ import pytest
 
 import pipeline
 from pipeline import DivergenceError, StabilityWarning, load_scene
-from pipeline.constraints import limit_stretch
+from pipeline.physics.constraints import limit_stretch
 from pipeline.simulation import Simulation
-from shading.jit import KernelPointer, njit
+from clothjit import KernelPointer, njit
 
 from conftest import COURSE_SCENES, cloth_dict, scene_dict, scene_path, spring_pairs
 
@@ -398,7 +398,7 @@ def test_provots_pre_pass_in_parallel_chunks_limits_as_in_one_call(rng):
     """From forces.PARALLEL_POINTS points on, Provot's pre-pass marks the long springs in
     parallel chunks, below in one call: the limit moves the points to the same place, bit
     for bit, either way (an 80x80 cloth, 6400 points, its springs stretched at random)."""
-    from pipeline.constraints import _mark_in_chunks, _mark_serially
+    from pipeline.physics.constraints import _mark_in_chunks, _mark_serially
 
     sim = Simulation(load_scene(scene_path("pinned2"), ["cloth.num_width_points=80",
                                                         "cloth.num_height_points=80"]))

@@ -1,4 +1,4 @@
-"""The explicit stability limit `pipeline.system.stability_limit(model)` -> (omega_max, dt_max).
+"""The explicit stability limit `pipeline.physics.system.stability_limit(model)` -> (omega_max, dt_max).
 
 Checked three independent ways: (a) analytically for square cells (omega_max^2 = 8 ks / m),
 (b) against the eigenvalues of the finite lattice's stiffness matrix K, built here with numpy
@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 from pipeline import DivergenceError, StabilityWarning, load_scene
-from pipeline.model import build_model
+from pipeline.physics.model import build_model
 from pipeline.simulation import Simulation
-from pipeline.system import stability_limit
+from pipeline.physics.system import stability_limit
 
 from conftest import cloth_dict, scene_dict, spring_pairs
 

@@ -1,4 +1,4 @@
-"""The first run on a machine (pipeline/warmup.py): an empty numba cache is filled by
+"""The first run on a machine (pipeline/run/warmup.py): an empty numba cache is filled by
 render and its compile helper together, the output is the same as a warm run's, and the
 next run finds every kernel cached."""
 from __future__ import annotations
@@ -21,10 +21,12 @@ import pytest
 
 from conftest import SCENES, cloth_dict, scene_dict, scene_path
 
-from pipeline import warmup
+from pipeline.run import warmup
+from pipeline import simulation
+from pipeline.simulation import Simulation
 
 #: the folder holding the package these tests import
-HOME = Path(warmup.__file__).resolve().parents[1]
+HOME = Path(warmup.__file__).resolve().parents[2]
 SCENE = scene_dict(cloth_dict(10, 10, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
                    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)])
 
@@ -70,51 +72,51 @@ def test_cold_run_fills_the_cache_for_the_next_run(tmp_path):
 # the jobs a scene can have (warmup.sim_jobs): these always, a model's, a collider table's
 # (a mesh's projection and sweep, or the projection's stand-in, and the sweeps of its other
 # kinds), wind or not, self-collision or not
-COMMON = ["pipeline.colliders:collide_all", "pipeline.colliders:_collide_range",
-          "pipeline.system:motion_summary", "pipeline.system:energy_guard",
-          "pipeline.reach:reach_check"]
-MODELS = [["pipeline.forces:internal_forces", "pipeline.forces:_direction_forces",
-           "pipeline.forces:_gather", "pipeline.constraints:limit_stretch",
-           "pipeline.constraints:_flag_long", "pipeline.constraints:_pack_mask"],
-          ["pipeline.forces:fem_internal_forces", "pipeline.fem:_triangles",
-           "pipeline.fem:_hinges", "pipeline.fem:_bands_of_parity",
-           "pipeline.fem:fem_filtered_jacobian_product"]]
-SWEEPS = ["pipeline.colliders:sweep_sphere", "pipeline.colliders:sweep_plane",
-          "pipeline.colliders:sweep_box"]
-MESH = ["pipeline.colliders.mesh:project", "pipeline.colliders:sweep_mesh"]
-POSES = ["pipeline.colliders:update_poses"]  # a table with keyframes
+COMMON = ["pipeline.physics.colliders:collide_all", "pipeline.physics.colliders:_collide_range",
+          "pipeline.physics.system:motion_summary", "pipeline.physics.system:energy_guard",
+          "pipeline.physics.reach:reach_check"]
+MODELS = [["pipeline.physics.forces:internal_forces", "pipeline.physics.forces:_direction_forces",
+           "pipeline.physics.forces:_gather", "pipeline.physics.constraints:limit_stretch",
+           "pipeline.physics.constraints:_flag_long", "pipeline.physics.constraints:_pack_mask"],
+          ["pipeline.physics.forces:fem_internal_forces", "pipeline.physics.fem:_triangles",
+           "pipeline.physics.fem:_hinges", "pipeline.physics.fem:_bands_of_parity",
+           "pipeline.physics.fem:fem_filtered_jacobian_product"]]
+SWEEPS = ["pipeline.physics.colliders:sweep_sphere", "pipeline.physics.colliders:sweep_plane",
+          "pipeline.physics.colliders:sweep_box"]
+MESH = ["pipeline.physics.colliders.mesh:project", "pipeline.physics.colliders:sweep_mesh"]
+POSES = ["pipeline.physics.colliders:update_poses"]  # a table with keyframes
 # two tables for the split test: a keyframed mesh and a plane, a sphere (the README's)
-TABLES = [MESH + [SWEEPS[1]] + POSES, ["pipeline.colliders:_unmoved", SWEEPS[0]]]
+TABLES = [MESH + [SWEEPS[1]] + POSES, ["pipeline.physics.colliders:_unmoved", SWEEPS[0]]]
 # every table: a mesh or not, any of the other kinds, keyframes or not
 ALL_TABLES = [base + list(kinds) + poses
-              for base in (MESH, ["pipeline.colliders:_unmoved"]) for poses in ([], POSES)
+              for base in (MESH, ["pipeline.physics.colliders:_unmoved"]) for poses in ([], POSES)
               for r in range(len(SWEEPS) + 1) for kinds in itertools.combinations(SWEEPS, r)]
 # the loops over the points through the colliders and of Provot's pre-pass (the classic
 # model's): serial for the course's sizes, parallel from forces.PARALLEL_POINTS points on
-LOOPS = [(["pipeline.colliders:_collide_serially"], ["pipeline.constraints:_mark_serially"]),
-         (["pipeline.colliders:_collide_in_chunks"], ["pipeline.constraints:_mark_in_chunks"])]
-WINDS = [[], ["pipeline.wind:add_wind_force", "pipeline.wind:_band"]]
-SELF = [[], ["pipeline.self_collision:self_collide"]]
-IMPLICIT = ["pipeline.integrators.implicit_euler:solve_step",
-            "pipeline.integrators.implicit_euler:_update"]
+LOOPS = [(["pipeline.physics.colliders:_collide_serially"], ["pipeline.physics.constraints:_mark_serially"]),
+         (["pipeline.physics.colliders:_collide_in_chunks"], ["pipeline.physics.constraints:_mark_in_chunks"])]
+WINDS = [[], ["pipeline.physics.wind:add_wind_force", "pipeline.physics.wind:_band"]]
+SELF = [[], ["pipeline.physics.self_collision:self_collide"]]
+IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
+            "pipeline.physics.integrators.implicit_euler:_update"]
 # the kernels each integrator's State points to, with the classic model and with the FEM
 STATE_KERNELS = {
-    "implicit-euler": (IMPLICIT + ["pipeline.forces:spring_prepare",
-                                   "pipeline.forces:spring_product",
-                                   "pipeline.forces:_jacobian_pass",
-                                   "pipeline.forces:spring_diagonal"],
-                       IMPLICIT + ["pipeline.forces:fem_prepare", "pipeline.forces:fem_product",
-                                   "pipeline.forces:fem_diagonal"]),
-    "verlet": (["pipeline.integrators.verlet:_update_all"],) * 2,
-    "euler": (["pipeline.integrators.euler:euler_update"],) * 2,
-    "symplectic-euler": (["pipeline.integrators.euler:euler_update"],) * 2,
-    "rk4": (["pipeline.integrators.rk4:_stage", "pipeline.integrators.rk4:_finish"],) * 2,
-    "xpbd": (["pipeline.integrators.xpbd:solve_springs"], ["pipeline.integrators.xpbd:solve_fem"])}
+    "implicit-euler": (IMPLICIT + ["pipeline.physics.forces:spring_prepare",
+                                   "pipeline.physics.forces:spring_product",
+                                   "pipeline.physics.forces:_jacobian_pass",
+                                   "pipeline.physics.forces:spring_diagonal"],
+                       IMPLICIT + ["pipeline.physics.forces:fem_prepare", "pipeline.physics.forces:fem_product",
+                                   "pipeline.physics.forces:fem_diagonal"]),
+    "verlet": (["pipeline.physics.integrators.verlet:_update_all"],) * 2,
+    "euler": (["pipeline.physics.integrators.euler:euler_update"],) * 2,
+    "symplectic-euler": (["pipeline.physics.integrators.euler:euler_update"],) * 2,
+    "rk4": (["pipeline.physics.integrators.rk4:_stage", "pipeline.physics.integrators.rk4:_finish"],) * 2,
+    "xpbd": (["pipeline.physics.integrators.xpbd:solve_springs"], ["pipeline.physics.integrators.xpbd:solve_fem"])}
 # (and none: the integrator's kernels cached)
 INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
                             if name != "symplectic-euler"]
 # called by the stepping kernel directly, not through a pointer
-LINKED = {"pipeline.system:motion_summary", "pipeline.system:energy_guard"}
+LINKED = {"pipeline.physics.system:motion_summary", "pipeline.physics.system:energy_guard"}
 
 
 def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
@@ -128,14 +130,14 @@ def _jobs(names) -> list[warmup.Job]:
                   key=lambda j: -warmup.COMPILE_SECONDS[j.name])
 
 
-@pytest.mark.filterwarnings("ignore::pipeline.overlap.StartInsideWarning")  # scenes that mean it
+@pytest.mark.filterwarnings("ignore::pipeline.physics.overlap.StartInsideWarning")  # scenes that mean it
 def test_every_job_of_a_scene_has_an_estimate():
     """The scenes above are the estimates' kernels, and every kernel a scene of scenes/
     compiles with any integrator is among them (start needs its estimate: without one the
     first run would compile everything on first use, in one process)."""
     from pipeline.scene import INTEGRATORS, load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.system import build_system
+    from pipeline.physics.system import build_system
 
     every = [set(listed) for listed in _scenes(ALL_TABLES, LOOPS)]
     assert set().union(*every) == set(warmup.COMPILE_SECONDS)
@@ -164,7 +166,7 @@ def test_an_integrators_jobs_are_its_own_present_kernels():
     nor the absent pointers of the other model (the springs' product passes, with the FEM)."""
     from pipeline.scene import INTEGRATORS as NAMES, load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.system import build_system
+    from pipeline.physics.system import build_system
 
     assert set(STATE_KERNELS) == set(NAMES)
     for k, model in enumerate(("classic", "fem")):
@@ -186,8 +188,8 @@ def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():
     either model. The passes are compiled (jobs) only where the scene has them."""
     from pipeline.scene import INTEGRATORS, load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.system import build_system
-    from shading.jit import argument_types
+    from pipeline.physics.system import build_system
+    from clothjit import argument_types
 
     wind = 'wind={"velocity": [3.0, 0.0, 1.0], "gust": 1.0}'
     self_on = "simulation.self_collision=true"
@@ -200,11 +202,11 @@ def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():
     for (model, extra), system in systems.items():
         assert system.classic == (model == "classic")
         names = {job.name for job in warmup.sim_jobs(system)}
-        assert ("pipeline.wind:add_wind_force" in names) == (wind in extra)
-        assert ("pipeline.wind:_band" in names) == (wind in extra)
-        assert ("pipeline.self_collision:self_collide" in names) == (self_on in extra)
-        assert ("pipeline.fem:_triangles" in names) == (model == "fem")
-        assert ("pipeline.constraints:limit_stretch" in names) == (model == "classic")
+        assert ("pipeline.physics.wind:add_wind_force" in names) == (wind in extra)
+        assert ("pipeline.physics.wind:_band" in names) == (wind in extra)
+        assert ("pipeline.physics.self_collision:self_collide" in names) == (self_on in extra)
+        assert ("pipeline.physics.fem:_triangles" in names) == (model == "fem")
+        assert ("pipeline.physics.constraints:limit_stretch" in names) == (model == "classic")
         if not extra:
             assert system.wind is None and system.scratch is None
     for integrator in INTEGRATORS:
@@ -220,13 +222,12 @@ def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():
 def test_prepare_comes_before_the_stability_limit(monkeypatch):
     """Simulation(prepare=...) hands the model and System to the warm-up before the
     stability limit runs (a FEM cloth's runs the element kernels)."""
-    from pipeline import simulation
 
     calls = []
     limit = simulation.stability_limit
     monkeypatch.setattr(simulation, "stability_limit",
                         lambda model: calls.append("limit") or limit(model))
-    sim = simulation.Simulation(SCENE, prepare=lambda model, system: calls.append(
+    sim = Simulation(SCENE, prepare=lambda model, system: calls.append(
         (model, system)))
     assert len(calls) == 2 and calls[1] == "limit"
     assert calls[0][0] is sim.model and calls[0][1] is sim.system
@@ -291,7 +292,7 @@ def test_split_balances_the_two_processes():
     readme = _jobs(COMMON + MODELS[0] + TABLES[1])
     assert warmup.split(readme, True, warmup.STEP_SECONDS["verlet"])[2]
     # one small kernel and nothing else: compiled here
-    small = [warmup.Job("pipeline.system:energy_guard", (), True)]
+    small = [warmup.Job("pipeline.physics.system:energy_guard", (), True)]
     assert warmup.split(small, False, 0.0) == (small, [], False)
 
 
@@ -341,10 +342,10 @@ def test_the_bar_counts_each_kernel_compiled_once(monkeypatch, step):
     """The bar's total is what gets compiled, in two processes too: the stepping kernel
     counts only when it is not cached, and is compiled once, in start."""
     bars = []
-    stepping = _Job("pipeline.integrators.verlet:advance", cached=not step)
+    stepping = _Job("pipeline.physics.integrators.verlet:advance", cached=not step)
     monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
     monkeypatch.setattr(warmup, "sim_jobs", lambda system: [
-        _Job("pipeline.reach:reach_check"), _Job("pipeline.system:energy_guard")])
+        _Job("pipeline.physics.reach:reach_check"), _Job("pipeline.physics.system:energy_guard")])
     monkeypatch.setattr(warmup, "integrator_jobs", lambda integrator, system: (stepping, []))
     monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs[:1], jobs[1:], True))
     monkeypatch.setattr(warmup.subprocess, "Popen", _Helper)
@@ -404,7 +405,7 @@ def test_compiles_inside_start_are_not_watched_again(monkeypatch):
     monkeypatch.setattr(warmup, "bar", lambda *a: bars.append(_Counted(*a)) or bars[-1])
     monkeypatch.setattr(warmup, "OURS", (__name__.split(".")[0],))
     monkeypatch.setattr(warmup, "sim_jobs",
-                        lambda system: [Compiling("pipeline.system:energy_guard")])
+                        lambda system: [Compiling("pipeline.physics.system:energy_guard")])
     monkeypatch.setattr(warmup, "integrator_jobs",
                         lambda integrator, system: (_Job("s", True), []))
     monkeypatch.setattr(warmup, "split", lambda jobs, render, step: (jobs, [], False))
@@ -421,12 +422,12 @@ def test_a_mesh_scenes_early_jobs_are_its_projection_and_sweep():
     gives nothing for a scene without a mesh."""
     from pipeline.scene import load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.system import build_system
+    from pipeline.physics.system import build_system
 
     bowl = load_scene(SCENES / "bowl.json")
     early = warmup.early_jobs(bowl)
-    assert [job.name for job in early] == ["pipeline.colliders.mesh:project",
-                                           "pipeline.colliders:sweep_mesh"]
+    assert [job.name for job in early] == ["pipeline.physics.colliders.mesh:project",
+                                           "pipeline.physics.colliders:sweep_mesh"]
     jobs = warmup.sim_jobs(build_system(bowl, cloth_model(bowl)))
     assert all(job in jobs for job in early)
     assert warmup.early_jobs(load_scene(SCENES / "sphere.json")) == []
@@ -446,8 +447,8 @@ def test_a_mesh_scene_starts_the_helper_on_entering_on_the_mesh_kernels(monkeypa
     start then compiles the rest here and sends the helper no job twice (an empty share
     when one process is sooner), waits for it, and its reports made before start count on
     start's bar."""
-    early = [_Job("pipeline.colliders.mesh:project"), _Job("pipeline.colliders:sweep_mesh")]
-    reach = _Job("pipeline.reach:reach_check")
+    early = [_Job("pipeline.physics.colliders.mesh:project"), _Job("pipeline.physics.colliders:sweep_mesh")]
+    reach = _Job("pipeline.physics.reach:reach_check")
     helpers, bars = [], []
 
     class Helper(_Helper):

@@ -1,4 +1,4 @@
-"""Wind forces (pipeline/wind.py, docs/wind.md): the per-triangle drag and lift law against a
+"""Wind forces (pipeline/physics/wind.py, docs/wind.md): the per-triangle drag and lift law against a
 direct evaluation of the formula, the equal split over vertices, the gust field's statistics,
 determinism and frozen-turbulence advection, and the closed-form velocity of a sheet
 accelerated by a steady wind."""
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline.scene import Wind
-from pipeline.wind import GUST_MODES, add_wind_force, air_velocity, max_wind_speed, pack_wind
+from pipeline.physics.wind import GUST_MODES, add_wind_force, air_velocity, max_wind_speed, pack_wind
 
 RTOL = 2e-6  # the kernel works in float32 per point and per triangle
 

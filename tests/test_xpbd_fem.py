@@ -1,4 +1,4 @@
-"""XPBD on the finite-element model (pipeline/integrators/xpbd.py, `_solve_fem`): the
+"""XPBD on the finite-element model (pipeline/physics/integrators/xpbd.py, `_solve_fem`): the
 constraints' gradients against the FEM forces, statics against implicit Euler, rigid motions
 and determinism. The classic (spring) XPBD is covered by test_integrators.py."""
 from __future__ import annotations
@@ -8,9 +8,9 @@ import pytest
 
 from conftest import cloth_dict, scene_dict
 from pipeline import Simulation
-from pipeline.fem import add_fem_forces
-from pipeline.integrators import xpbd
-from shading.jit import njit
+from pipeline.physics.fem import add_fem_forces
+from pipeline.physics.integrators import xpbd
+from clothjit import njit
 
 
 def fem_scene(nw=8, nh=8, *, pinned=(), damping=0.0, steps_per_frame=30,

@@ -1,6 +1,6 @@
 """bump: normal perturbed by the height map (red channel) through TBN = [t, n0 x t, n0]
 (forward differences of one texel, scaled by k_h * k_n), then Blinn-Phong."""
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import blinn_phong, bump_normal, vec3
 from . import Shader, param_offsets

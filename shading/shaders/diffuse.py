@@ -1,5 +1,5 @@
 """diffuse: k_d * I / r^2 * max(0, n.l)."""
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import light_terms, two_sided
 from . import Shader

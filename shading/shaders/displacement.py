@@ -1,7 +1,7 @@
 """displacement: every vertex moves to p + n h(uv) k_h before projection; fragments are
 shaded as bump at the displaced position with the undisplaced normal and tangent."""
 import numpy as np
-from ..jit import njit, read_only
+from clothjit import njit, read_only
 
 from ..textures import bilinear
 from . import Shader

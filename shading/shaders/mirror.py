@@ -1,6 +1,6 @@
 """mirror: w_i = 2 (v.n) n - v, colour = cube map along w_i (OpenGL face table), no
 lighting (default cube map textures/cubemap/; RenderSettings.cubemap)."""
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import dot, two_sided
 from ..textures import sample_cube

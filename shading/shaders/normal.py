@@ -1,5 +1,5 @@
 """normal: (n + 1) / 2 with the two-sided normal n."""
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import two_sided
 from . import Shader

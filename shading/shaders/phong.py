@@ -1,5 +1,5 @@
 """phong (Blinn-Phong): k_a I_a + k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p."""
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import blinn_phong, two_sided, vec3
 from . import Shader, param_offsets

@@ -1,6 +1,6 @@
 """texture: bilinear sample of the colour texture at uv, wrap repeat, no mipmaps,
 no lighting (the default texture is textures/cloth.png; RenderSettings.texture)."""
-from ..jit import njit
+from clothjit import njit
 
 from ..textures import bilinear
 from . import Shader

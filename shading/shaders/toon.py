@@ -3,7 +3,7 @@ colour = k_d (ambient + diffuse q) + spec s, times outline_factor where n.v < ou
 No distance fall-off (I and r are not used)."""
 import math
 
-from ..jit import njit
+from clothjit import njit
 
 from ..lighting import dot, normalize, powf, sub, two_sided
 from . import Shader, param_offsets

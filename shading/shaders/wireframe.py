@@ -1,7 +1,7 @@
 """wireframe: every mesh edge (for the cloth: every enabled spring; for colliders their
 grid lines) as a 1-pixel line over the background, colour k_d * line_colour (cloth and
 sphere white, plane 0.7 grey). Lines are depth tested against each other only."""
-from ..jit import njit
+from clothjit import njit
 
 from . import Shader, param_offsets
 

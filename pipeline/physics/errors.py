@@ -1,0 +1,10 @@
+"""What a run of the physics raises or warns of."""
+from __future__ import annotations
+
+
+class DivergenceError(RuntimeError):
+    """The simulation blew up; `str(err)` names the frame, step and quantity."""
+
+
+class StabilityWarning(UserWarning):
+    """The time step exceeds the explicit stability limit of the spring lattice."""
