@@ -31,7 +31,8 @@ from numba.core.types.function_type import WrapperAddressProtocol
 from numba.core.typing.typeof import typeof_impl
 from numba.experimental import function_type  # noqa: F401  (first-class functions: model, unboxing)
 
-__all__ = ["STAGE", "KernelPointer", "argument_types", "njit", "prange", "read_only"]
+__all__ = ["STAGE", "THREADS", "KernelPointer", "argument_types", "njit", "numba_threads", "prange",
+           "read_only", "threads_setting_error"]
 
 LOCK_NAME = "clothpipe-cache.lock"
 
@@ -41,6 +42,71 @@ LOCK_NAME = "clothpipe-cache.lock"
 # Symbol not found: allocate_sched" (seen: scenes/flag.json with rk4 after swing with rk4
 # and flag with Verlet). Every run starts those threads anyway; start them before any kernel.
 numba.get_num_threads()
+
+
+def busy_cores(samples: int = 5, interval: float = 0.001) -> int:
+    """How many other threads are running or runnable on this machine now: the median of
+    `samples` reads of the running count in /proc/loadavg (which counts the reader itself),
+    `interval` s apart; 0 where there is no /proc/loadavg. Called before any parallel kernel
+    has run, when this process has only the calling thread runnable."""
+    import statistics
+    import time
+
+    counts = []
+    try:
+        for k in range(samples):
+            if k:
+                time.sleep(interval)
+            with open("/proc/loadavg") as fh:
+                counts.append(int(fh.read().split()[3].split("/")[0]) - 1)
+    except (OSError, ValueError, IndexError):
+        return 0
+    return max(0, int(statistics.median(counts)))
+
+
+THREADS_VARIABLE = "CLOTHPIPE_THREADS"
+
+
+def threads_setting_error() -> str | None:
+    """What is wrong with CLOTHPIPE_THREADS, or None: `auto` (the default), `all` or a whole
+    number >= 1."""
+    value = os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
+    if value in ("auto", "all") or (value.isdigit() and int(value) >= 1):
+        return None
+    return (f"{THREADS_VARIABLE}: expected auto, all or a whole number >= 1, "
+            f"got {os.environ[THREADS_VARIABLE]!r}")
+
+
+def threads_for_free_cores() -> int:
+    """numba threads for this process's kernels: one per core of its affinity mask that no
+    other process is keeping busy (busy_cores), at least 1, at most NUMBA_NUM_THREADS.
+
+    Every parallel loop ends on a barrier (several per simulation step), and when the machine
+    has fewer free cores than threads, each barrier waits for a descheduled thread while the
+    others spin: beside one CPU-bound process the README's command simulated 8-22x slower on
+    2 threads than on 1 (benchmarks/load.py). One thread per free core avoids that; results
+    do not depend on the thread count (every parallel loop writes disjoint points).
+    CLOTHPIPE_THREADS=all keeps numba's default (NUMBA_NUM_THREADS), a number sets the count
+    (at most NUMBA_NUM_THREADS), and an explicit NUMBA_NUM_THREADS is kept as it is. A value
+    that is none of these counts as auto (`render` refuses it first: threads_setting_error)."""
+    limit = numba.config.NUMBA_NUM_THREADS
+    value = os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
+    if value == "all" or "NUMBA_NUM_THREADS" in os.environ or limit <= 1:
+        return limit
+    if value.isdigit() and int(value) >= 1:
+        return min(limit, int(value))
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cores = os.cpu_count() or 1
+    return max(1, min(limit, cores - busy_cores()))
+
+
+#: The threads this process's parallel kernels run on unless told otherwise, chosen once at
+#: import (before any parallel kernel): the main thread's count is set to it here; another
+#: thread sets its own (numba_threads), numba's being per thread.
+THREADS = threads_for_free_cores()
+numba.set_num_threads(THREADS)
 
 # Options of the fragment stage (shading/shade.py) and of the helpers it calls rather than
 # inlines: cached, releases the GIL, no zero-division checks (numpy error model), and

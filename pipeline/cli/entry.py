@@ -59,6 +59,13 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def _main(argv: Sequence[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
+    if not {"-h", "--help", "--version"} & set(argv):  # those need no numba
+        from clothjit import threads_setting_error
+
+        problem = threads_setting_error()
+        if problem is not None:
+            Errors(sys.stderr, quiet=False, debug=False).say(problem)
+            return 2
     if argv and argv[0] in SUBCOMMANDS:
         return _run_subcommand(argv[0], argv[1:])
     if _wants_report(argv):

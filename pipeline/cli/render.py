@@ -483,6 +483,8 @@ def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:
     def worker():
         import numba
 
+        from clothjit import THREADS
+
         if threads_per_stage is not None:
             numba.set_num_threads(threads_per_stage)
         while True:
@@ -490,8 +492,8 @@ def _run_pipeline(frames, consume, depth, threads_per_stage) -> None:
             if item is done or stop.is_set():
                 return
             if simulated.is_set() and threads_per_stage is not None:
-                # the frames left are drawn on every core (the image does not depend on it)
-                numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+                # the frames left are drawn on every free core (the image does not depend on it)
+                numba.set_num_threads(THREADS)
             try:
                 consume(*item)
             except BaseException as exc:  # noqa: BLE001 - handed to the main thread
