@@ -1,7 +1,11 @@
-"""numba's `njit` and `prange` for every kernel of clothpipe, with numba's on-disk cache
+"""The numba helpers that both the simulator (pipeline) and the renderer (shading) use, the
+bottom layer: it imports numba and the standard library only.
+
+numba's `njit` and `prange` for every kernel of clothpipe, with numba's on-disk cache
 made safe for processes that compile at the same time and quicker to load from, numba's
 inliner rid of a quadratic copy (`_InlinerCopies`), and its first compile in a process rid of
-importing scipy.linalg (`_BlasCheckWhenUsed`).
+importing scipy.linalg (`_BlasCheckWhenUsed`); the numba threads of a process chosen from the
+cores no other process keeps busy (`THREADS`).
 
 numba's cache (`IndexDataCacheFile.save`) reads a function's index, picks a data-file name
 not yet in it, writes the index, then the data. Two processes that compile different

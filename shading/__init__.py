@@ -8,6 +8,9 @@
 `shading.SHADERS` lists the shader names; `shading.TextureError` is raised for a missing
 or unreadable texture (path in the message). `import shading` is light: the camera is
 numpy only, and the modules that import numba load on first use of their names.
+
+Imports only clothjit (the numba helpers), never the simulator (pipeline); inside, the
+rasteriser knows nothing of lighting (pyproject.toml's import-linter contracts).
 """
 from __future__ import annotations
 
@@ -24,7 +27,7 @@ _LAZY = {
     "TextureError": "textures", "load_texture": "textures", "load_cubemap": "textures",
 }
 
-_SUBMODULES = {"jit", "lighting", "mesh", "raster", "renderer", "shade", "shaders", "testing",
+_SUBMODULES = {"lighting", "mesh", "raster", "renderer", "shade", "shaders", "testing",
                "textures"}
 
 __all__ = ["Camera", *_LAZY]

@@ -29,15 +29,8 @@ from pipeline.run.errors import UsageError
 from pipeline.run.progress import bar, progress_enabled
 
 from .messages import Errors, failure, interrupted_message, one_line, parse_subcommand
-from .options import (
-    PROG,
-    RENDER_OPTIONS,
-    Parser,
-    add_cluster_options,
-    add_render_options,
-    cluster_requested,
-    shader_names,
-)
+from .options import (PROG, RENDER_OPTIONS, Parser, add_cluster_options, add_render_options,
+                      cluster_requested, shader_names)
 from .options import build_parser as render_parser
 from .render import check_shader, fmt_bytes, frame_times, output_kind, run
 

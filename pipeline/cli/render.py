@@ -581,14 +581,8 @@ def render_on_cluster(args, err, scene_file, overrides, plan, writers, golden, f
     import distributed
 
     from pipeline.cluster import client as cluster
-    from pipeline.cluster.farm import (
-        DEPTH_PER_THREAD,
-        Shot,
-        chunk_size,
-        frame_shot_here,
-        next_chunk,
-        simulate_shot,
-    )
+    from pipeline.cluster.farm import (DEPTH_PER_THREAD, Shot, chunk_size, frame_shot_here,
+                                       next_chunk, simulate_shot)
 
     timers = _Timers()
     out_w = writers["out"]

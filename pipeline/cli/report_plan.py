@@ -13,16 +13,8 @@ from typing import Sequence
 from pipeline.run import outputs
 from pipeline.run.errors import UsageError
 
-from .options import (
-    DEFAULT_FPS,
-    Parser,
-    add_cluster_options,
-    cluster_requested,
-    override_arg,
-    positive_float,
-    positive_int,
-    size_arg,
-)
+from .options import (DEFAULT_FPS, Parser, add_cluster_options, cluster_requested, override_arg,
+                      positive_float, positive_int, size_arg)
 from .render import nearest_sim_frames, output_times
 
 PROG = "render report"

@@ -8,19 +8,9 @@ from dataclasses import asdict, dataclass, field
 
 from pipeline.scene import Scene
 
-from .controller import (
-    CHECK_COST,
-    COARSE_RATIO,
-    IMPLICIT_COST,
-    PILOT_SECONDS,
-    PILOT_STEPS,
-    SLEEP_TIME,
-    STABILITY_MARGIN,
-    gusty,
-    metres_per_pixel,
-    pilot_text,
-    wake_time,
-)
+from .controller import (CHECK_COST, COARSE_RATIO, IMPLICIT_COST, PILOT_SECONDS, PILOT_STEPS,
+                         SLEEP_TIME, STABILITY_MARGIN, gusty, metres_per_pixel, pilot_text,
+                         wake_time)
 
 
 @dataclass

@@ -17,23 +17,11 @@ from clothjit import KernelPointer, njit
 from pipeline.scene import Scene
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
-from .constraints import (
-    CandidateMask,
-    candidate_mask,
-    existence_bits,
-    limit_stretch,
-    stretch_limits,
-)
+from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
+                          stretch_limits)
 from .fem import FemParams, estimate_omega_max, no_fem
-from .forces import (
-    SpringKernels,
-    direction_offsets,
-    fem_internal_forces,
-    gather_order,
-    internal_forces,
-    spring_force_buffer,
-    spring_kernels,
-)
+from .forces import (SpringKernels, direction_offsets, fem_internal_forces, gather_order,
+                     internal_forces, spring_force_buffer, spring_kernels)
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .reach import Reach, new_reach, reach_check
 from .self_collision import SelfCollisionScratch, self_collide

@@ -15,41 +15,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .check import (
-    PathItem,
-    Problem,
-    check_files,
-    check_finite,
-    check_semantics,
-    collider_items,
-    fmt_path,
-    kind_of,
-    resolve_path,
-    show,
-    validate_schema,
-)
-from .types import (
-    COLLIDER_KEYS,
-    COURSE_CAMERA,
-    RENDER_PARAMS,
-    VEC3_PARAMS,
-    Box,
-    CameraSettings,
-    Cloth,
-    Collider,
-    FemMaterial,
-    Keyframe,
-    LightSettings,
-    MeshCollider,
-    Plane,
-    RenderSettings,
-    Scene,
-    SceneError,
-    SimulationSettings,
-    Sphere,
-    Vec3,
-    Wind,
-)
+from .check import (PathItem, Problem, check_files, check_finite, check_semantics, collider_items,
+                    fmt_path, kind_of, resolve_path, show, validate_schema)
+from .types import (COLLIDER_KEYS, COURSE_CAMERA, RENDER_PARAMS, VEC3_PARAMS, Box, CameraSettings,
+                    Cloth, Collider, FemMaterial, Keyframe, LightSettings, MeshCollider, Plane,
+                    RenderSettings, Scene, SceneError, SimulationSettings, Sphere, Vec3, Wind)
 
 _TOP_KEYS = ("cloth", "sphere", "plane", "box", "mesh", "wind", "simulation", "camera", "light",
              "render")

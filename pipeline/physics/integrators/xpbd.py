@@ -28,18 +28,8 @@ from numba.core import types
 
 from clothjit import KernelPointer, njit
 
-from ..fem import (
-    HINGE_KINDS,
-    HINGE_VERTICES,
-    TRIANGLE_KINDS,
-    TRIANGLE_VERTICES,
-    _comb,
-    _deformation,
-    _dot,
-    _hinge,
-    _hinge_gradient,
-    _scale,
-)
+from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
+                   _deformation, _dot, _hinge, _hinge_gradient, _scale)
 from ..forces import external_force
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
