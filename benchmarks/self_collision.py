@@ -64,7 +64,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import clothjit
-    from pipeline import Simulation
+    from pipeline import Simulation, load_scene
 
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, numba threads "
           f"{clothjit.THREADS}, load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
@@ -75,10 +75,12 @@ def main() -> None:
         best = {on: [float("inf")] * args.seconds for on in raws}
         for _ in range(args.rounds):
             for on, raw in raws.items():
-                best[on] = [min(a, b) for a, b in zip(best[on], seconds_per_second(raw, args.seconds))]
-        steps = int(round(Simulation(raws[True]).scene.simulation.frames_per_sec)) * \
-            Simulation(raws[True]).scene.simulation.steps_per_frame
-        print(f"selfCollision {size}x{size}, best of {args.rounds}: us per step in each simulated second")
+                times = seconds_per_second(raw, args.seconds)
+                best[on] = [min(a, b) for a, b in zip(best[on], times)]
+        settings = load_scene(raws[True]).simulation
+        steps = int(round(settings.frames_per_sec)) * settings.steps_per_frame
+        print(f"selfCollision {size}x{size}, best of {args.rounds}: us per step in each "
+              "simulated second")
         print(f"{'second':>8} {'with':>10} {'without':>10} {'ratio':>7}")
         for k in range(args.seconds):
             on, off = best[True][k] / steps * 1e6, best[False][k] / steps * 1e6

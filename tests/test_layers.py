@@ -56,7 +56,8 @@ def test_a_module_at_the_wrong_layer_fails(tree, path, source, broken):
     try:
         if path == "shading/raster_lit.py":  # give it a layer: the rasteriser's
             text = (tree / "pyproject.toml").read_text()
-            (tree / "pyproject.toml").write_text(text.replace('"raster | mesh', '"raster | raster_lit | mesh'))
+            text = text.replace('"raster | mesh', '"raster | raster_lit | mesh')
+            (tree / "pyproject.toml").write_text(text)
         result = lint(tree)
     finally:
         module.unlink()
