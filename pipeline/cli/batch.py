@@ -77,7 +77,7 @@ class Result:
 
 def render_args(name: str, target: Path, options: dict) -> argparse.Namespace:
     """The `render` command line for one scene: `name --out target` plus `options`
-    (values of cli.RENDER_OPTIONS)."""
+    (values of pipeline.cli.options.RENDER_OPTIONS)."""
     args = render_parser().parse_args(["--out", str(target), "--quiet", "--", name])
     for key, value in options.items():
         setattr(args, key, value)

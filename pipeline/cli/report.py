@@ -30,8 +30,10 @@ message (its frames before the blow-up are still shown); the report is still wri
 the exit status stays 0 (a warning goes to stderr). Exit status: 0 ok, 1 internal failure,
 2 bad input (checked before any simulation; nothing written), 130 interrupted.
 
-Entry points: `add_arguments(parser)` + `run(args)` (for a `render report` sub-command),
-`main(argv)` (its own parser). Library use: `build_report(...)`, `simulate_variant(...)`.
+Entry points: `report_plan.add_arguments(parser)` + `run(args)` (for a `render report`
+sub-command), `main(argv)` (its own parser). Library use: `build_report(...)` here,
+`report_runs.simulate_variant(...)`. The command line and plan are in report_plan, the
+simulations in report_runs, the contact sheet in report_sheet, the page in report_html.
 """
 from __future__ import annotations
 
