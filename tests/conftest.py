@@ -19,6 +19,9 @@ def pytest_configure(config):
     if os.environ.get("PYTEST_XDIST_WORKER"):
         import numba
 
+        # before clothjit is imported: it sets the main thread's count from this variable
+        # (else from the free cores, which two workers starting together both see free)
+        os.environ["CLOTHPIPE_THREADS"] = "1"
         numba.set_num_threads(1)
 
 
