@@ -20,7 +20,8 @@ more (a policy to compare; several allowed).
 
 Loads: `quiet` (nothing started), `1 busy`, `2 busy`: that many `python -c "while True:
 pass"` processes, started by this script before the row's runs and killed after them (always:
-also on Ctrl-C or SIGTERM). Other work on the machine is not controlled: the load average is
+also on Ctrl-C or SIGTERM); with `--late S`, started S seconds after each run's process
+instead and killed when it ends (load that begins during a run). Other work on the machine is not controlled: the load average is
 printed at the start and end of each row. Within a row, each round runs every case once per
 configuration, the configurations in an order rotated every round, so that they share
 conditions; one warm-up run per case and configuration (untimed; it fills an empty cache)
@@ -82,11 +83,28 @@ def pinned2(size: int) -> dict:
     return raw
 
 
-def run_sim(size: int, frames: int, env: dict, tmp: str) -> dict:
+def run(cmd: list[str], env: dict, cwd, late: tuple[int, float] | None
+        ) -> subprocess.CompletedProcess:
+    """subprocess.run; with `late` = (n, seconds), n busy processes start that long after the
+    command does and are killed when it ends (load that begins during a run)."""
+    if not late or not late[0]:
+        return subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
+    proc = subprocess.Popen(cmd, env=env, cwd=cwd, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        out, err = proc.communicate(timeout=late[1])
+    except subprocess.TimeoutExpired:
+        with Busy(late[0], settle=0.0):
+            out, err = proc.communicate()
+    return subprocess.CompletedProcess(cmd, proc.returncode, out, err)
+
+
+def run_sim(size: int, frames: int, env: dict, tmp: str,
+            late: tuple[int, float] | None = None) -> dict:
     # run in an empty folder: `python -c` puts its working directory first on sys.path, and
     # this tree's packages would shadow those PYTHONPATH chooses
-    out = subprocess.run([sys.executable, "-c", SIM_CODE, json.dumps(pinned2(size)),
-                          str(frames)], env=env, cwd=tmp, capture_output=True, text=True)
+    out = run([sys.executable, "-c", SIM_CODE, json.dumps(pinned2(size)), str(frames)],
+              env, tmp, late)
     if out.returncode:
         raise RuntimeError(f"simulator case {size}x{size} failed:\n{out.stderr[-2000:]}")
     r = json.loads(out.stdout.strip().splitlines()[-1])
@@ -107,11 +125,11 @@ def render_command() -> list[str]:
     return [found]
 
 
-def run_readme(env: dict, tmp: str) -> dict:
+def run_readme(env: dict, tmp: str, late: tuple[int, float] | None = None) -> dict:
     out_gif = os.path.join(tmp, "cloth.gif")
     cmd = render_command() + ["scenes/sphere.json", "--shader", "phong", "--out", out_gif]
     t0 = time.perf_counter()
-    out = subprocess.run(cmd, env=env, cwd=ROOT, capture_output=True, text=True)
+    out = run(cmd, env, ROOT, late)
     wall = time.perf_counter() - t0
     if out.returncode:
         raise RuntimeError(f"render failed:\n{out.stderr[-2000:]}")
@@ -127,14 +145,14 @@ def run_readme(env: dict, tmp: str) -> dict:
 class Busy:
     """n CPU-bound Python processes, killed on exit from the block whatever happens."""
 
-    def __init__(self, n: int):
-        self.n, self.procs = n, []
+    def __init__(self, n: int, settle: float = 0.5):
+        self.n, self.settle, self.procs = n, settle, []
 
     def __enter__(self):
         for _ in range(self.n):
             self.procs.append(subprocess.Popen([sys.executable, "-c", BUSY]))
         if self.n:
-            time.sleep(0.5)  # let them get going
+            time.sleep(self.settle)  # let them get going
         return self
 
     def __exit__(self, *exc):
@@ -183,6 +201,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true",
                     help="pinned2 50x50 and the README command only (still --runs runs)")
     ap.add_argument("--json", default=None, help="also write every run's figures here")
+    ap.add_argument("--late", type=float, default=None, metavar="S",
+                    help="start each row's busy processes S seconds after each run's process "
+                         "(load that begins during a run), not before the row")
     args = ap.parse_args()
 
     cases = (args.cases or ("50,readme" if args.quick else "50,100,200,readme")).split(",")
@@ -213,7 +234,8 @@ def main() -> None:
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for load in loads:
-                with Busy(load):
+                late = (load, args.late) if args.late is not None else None
+                with Busy(0 if late else load):
                     start = loadavg()
                     for case in cases:  # warm-up (fills an empty cache), untimed
                         for label, extra in configs:
@@ -227,8 +249,9 @@ def main() -> None:
                         order = configs[rnd % len(configs):] + configs[:rnd % len(configs)]
                         for case in cases:
                             for label, extra in order:
-                                r = (run_readme(env_of(extra), tmp) if case == "readme" else
-                                     run_sim(int(case), frames[int(case)], env_of(extra), tmp))
+                                r = (run_readme(env_of(extra), tmp, late) if case == "readme"
+                                     else run_sim(int(case), frames[int(case)], env_of(extra),
+                                                  tmp, late))
                                 results.setdefault((load, case, label), []).append(r)
                                 shown = ("simulate", "total", "wall") if case == "readme" \
                                     else ("sim s",)

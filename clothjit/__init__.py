@@ -19,13 +19,14 @@ folder for the whole read-pick-write, and writes the data before the index, so t
 from __future__ import annotations
 
 import contextlib
-from collections.abc import Iterator
 import copy
 import functools
 import importlib.abc
 import itertools
 import os
 import sys
+import threading
+from collections.abc import Iterator
 
 import numba
 from numba import prange
@@ -35,8 +36,8 @@ from numba.core.types.function_type import WrapperAddressProtocol
 from numba.core.typing.typeof import typeof_impl
 from numba.experimental import function_type  # noqa: F401  (first-class functions: model, unboxing)
 
-__all__ = ["STAGE", "THREADS", "KernelPointer", "argument_types", "njit", "numba_threads", "prange",
-           "read_only", "threads_setting_error"]
+__all__ = ["STAGE", "THREADS", "KernelPointer", "adjust_threads", "argument_types", "njit",
+           "numba_threads", "prange", "read_only", "threads_setting_error"]
 
 LOCK_NAME = "clothpipe-cache.lock"
 
@@ -106,11 +107,84 @@ def threads_for_free_cores() -> int:
     return max(1, min(limit, cores - busy_cores()))
 
 
+#: whether the thread count follows the load (CLOTHPIPE_THREADS auto, the default)
+_AUTO = (os.environ.get(THREADS_VARIABLE, "auto").strip().lower() != "all"
+         and not os.environ.get(THREADS_VARIABLE, "").strip().isdigit()
+         and "NUMBA_NUM_THREADS" not in os.environ and numba.config.NUMBA_NUM_THREADS > 1)
+
 #: The threads this process's parallel kernels run on unless told otherwise, chosen once at
 #: import (before any parallel kernel): the main thread's count is set to it here; another
 #: thread sets its own (numba_threads), numba's being per thread.
 THREADS = threads_for_free_cores()
 numba.set_num_threads(THREADS)
+
+#: Seconds between looks at the machine's load while a simulation runs (adjust_threads).
+LOOK_EVERY = 0.1
+
+
+class _LoadWatch:
+    """The cores no other process is using, from the last LOOK_EVERY seconds or more: the
+    machine's busy time (/proc/stat: user, nice, system, irq, softirq, steal) minus this
+    process's own (/proc/self/stat: utime, stime, its spinning threads included), in clock
+    ticks, over the wall time between two looks."""
+
+    def __init__(self) -> None:
+        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
+            os.cpu_count() or 1)
+        self.tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
+        self.last = self._look()
+        self.free = THREADS
+
+    @staticmethod
+    def _look() -> tuple[float, int, int] | None:
+        import time
+
+        try:
+            with open("/proc/stat") as fh:
+                cpu = [int(v) for v in fh.readline().split()[1:9]]
+            with open("/proc/self/stat") as fh:
+                own = fh.read().rsplit(")", 1)[1].split()
+        except (OSError, ValueError, IndexError):
+            return None
+        busy = cpu[0] + cpu[1] + cpu[2] + sum(cpu[5:8])  # idle and iowait left out
+        return time.monotonic(), busy, int(own[11]) + int(own[12])
+
+    def free_cores(self) -> int:
+        if self.last is None:
+            return self.free
+        import time
+
+        if time.monotonic() - self.last[0] < LOOK_EVERY:
+            return self.free
+        now = self._look()
+        if now is None:
+            return self.free
+        seconds = now[0] - self.last[0]
+        others = ((now[1] - self.last[1]) - (now[2] - self.last[2])) / (seconds * self.tick)
+        self.last = now
+        self.free = max(1, self.cores - int(others + 0.5))
+        return self.free
+
+
+_watch = _LoadWatch()
+_chosen = threading.local()  # the count adjust_threads last set in this thread
+
+
+def adjust_threads() -> None:
+    """Between frames: the calling thread's numba threads follow the cores other processes
+    leave free (looked at every LOOK_EVERY s), so that load that starts during a run does not
+    stall every parallel loop's barrier. Only under CLOTHPIPE_THREADS=auto, and only while the
+    thread runs on the count chosen here (THREADS, or this function's last): a count a caller
+    set (numba_threads) is left alone. Results do not depend on it."""
+    if not _AUTO:
+        return
+    current = numba.get_num_threads()
+    if current != getattr(_chosen, "threads", THREADS):
+        return
+    want = max(1, min(numba.config.NUMBA_NUM_THREADS, _watch.free_cores()))
+    if want != current:
+        numba.set_num_threads(want)
+    _chosen.threads = want
 
 # Options of the fragment stage (shading/shade.py) and of the helpers it calls rather than
 # inlines: cached, releases the GIL, no zero-division checks (numpy error model), and

@@ -10,13 +10,13 @@ from pathlib import Path
 
 import numpy as np
 
+from clothjit import adjust_threads
+from pipeline.physics.errors import DivergenceError, StabilityWarning
 from pipeline.physics.integrators import integrator_module
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
 from pipeline.physics.system import System, build_system, stability_limit
 from pipeline.scene import Scene, load_scene
-
-from .physics.errors import DivergenceError, StabilityWarning
 
 
 def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> ClothModel:
@@ -170,6 +170,7 @@ class Simulation:
         fidelity auto the steps are chosen per frame: use advance()."""
         if self.stepper is not None:
             raise ValueError("under fidelity auto the steps are chosen per frame: use advance()")
+        adjust_threads()
         done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
         if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
@@ -177,11 +178,12 @@ class Simulation:
 
     def advance(self, frames: int = 1) -> None:
         """Advance by whole frames (steps_per_frame steps each; fidelity auto: as chosen)."""
-        if self.stepper is not None:
-            for _ in range(frames):
+        for _ in range(frames):  # frame by frame: the threads may follow the load between
+            if self.stepper is not None:
+                adjust_threads()
                 self.stepper.advance_frame()
-            return
-        self.step(frames * self.system.steps_per_frame)
+            else:
+                self.step(self.system.steps_per_frame)
 
     def frames(self, count: int):
         """Yield the positions (N, 3) after each of the next `count` frames (views: copy to keep)."""

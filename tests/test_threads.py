@@ -62,3 +62,62 @@ def test_a_bad_setting_is_refused_naming_the_variable(tmp_path, capsys, monkeypa
     assert err.startswith("render: CLOTHPIPE_THREADS: expected auto, all or a whole number >= 1")
     assert len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_load_watch_sees_processes_that_start_after_it(every_core_busy):
+    """The watch behind adjust_threads, on real busy processes: /proc/stat's busy time less
+    this process's own leaves no core free."""
+    import time
+
+    import clothjit
+
+    watch = clothjit._LoadWatch()
+    time.sleep(clothjit.LOOK_EVERY * 2)
+    assert watch.free_cores() == 1
+
+
+def test_threads_follow_the_free_cores_only_where_they_were_chosen(monkeypatch):
+    import numba
+
+    import clothjit
+
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("needs 2 threads")
+    monkeypatch.setattr(clothjit, "_AUTO", True)
+    monkeypatch.setattr(clothjit, "_chosen", __import__("threading").local())
+    monkeypatch.setattr(clothjit, "THREADS", 2)
+    free = [1]
+    monkeypatch.setattr(clothjit._watch, "free_cores", lambda: free[0])
+    before = numba.get_num_threads()
+    try:
+        numba.set_num_threads(2)
+        clothjit.adjust_threads()  # load came: down to the free core
+        assert numba.get_num_threads() == 1
+        free[0] = 2
+        clothjit.adjust_threads()  # it went: back up
+        assert numba.get_num_threads() == 2
+        with clothjit.numba_threads(1):  # a caller's count is left alone
+            free[0] = 2
+            clothjit.adjust_threads()
+            assert numba.get_num_threads() == 1
+        monkeypatch.setattr(clothjit, "_AUTO", False)  # CLOTHPIPE_THREADS=all or a number
+        free[0] = 1
+        clothjit.adjust_threads()
+        assert numba.get_num_threads() == 2
+    finally:
+        numba.set_num_threads(before)
+
+
+@pytest.mark.parametrize("fidelity", ["exact", "auto"])
+def test_a_simulation_looks_at_the_load_every_frame(monkeypatch, fidelity):
+    from conftest import cloth_dict, scene_dict
+
+    from pipeline import Simulation, simulation
+
+    calls = []
+    monkeypatch.setattr(simulation, "adjust_threads", lambda: calls.append(1))
+    raw = scene_dict(cloth_dict(6, 6), steps_per_frame=4)
+    raw["simulation"]["fidelity"] = fidelity
+    sim = Simulation(raw)
+    sim.advance(5)
+    assert len(calls) == 5
