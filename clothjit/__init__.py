@@ -24,8 +24,10 @@ import functools
 import importlib.abc
 import itertools
 import os
+import statistics
 import sys
 import threading
+import time
 from collections.abc import Iterator
 
 import numba
@@ -54,9 +56,6 @@ def busy_cores(samples: int = 5, interval: float = 0.001) -> int:
     `samples` reads of the running count in /proc/loadavg (which counts the reader itself),
     `interval` s apart; 0 where there is no /proc/loadavg. Called before any parallel kernel
     has run, when this process has only the calling thread runnable."""
-    import statistics
-    import time
-
     counts = []
     try:
         for k in range(samples):
@@ -67,6 +66,14 @@ def busy_cores(samples: int = 5, interval: float = 0.001) -> int:
     except (OSError, ValueError, IndexError):
         return 0
     return max(0, int(statistics.median(counts)))
+
+
+def _cores() -> int:
+    """The cores this process may run on (its affinity mask)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
 
 
 THREADS_VARIABLE = "CLOTHPIPE_THREADS"
@@ -82,35 +89,38 @@ def threads_setting_error() -> str | None:
             f"got {os.environ[THREADS_VARIABLE]!r}")
 
 
-def threads_for_free_cores() -> int:
-    """numba threads for this process's kernels: one per core of its affinity mask that no
-    other process is keeping busy (busy_cores), at least 1, at most NUMBA_NUM_THREADS.
-
-    Every parallel loop ends on a barrier (several per simulation step), and when the machine
-    has fewer free cores than threads, each barrier waits for a descheduled thread while the
-    others spin: beside one CPU-bound process the README's command simulated 8-22x slower on
-    2 threads than on 1 (benchmarks/load.py). One thread per free core avoids that; results
-    do not depend on the thread count (every parallel loop writes disjoint points).
-    CLOTHPIPE_THREADS=all keeps numba's default (NUMBA_NUM_THREADS), a number sets the count
-    (at most NUMBA_NUM_THREADS), and an explicit NUMBA_NUM_THREADS is kept as it is. A value
-    that is none of these counts as auto (`render` refuses it first: threads_setting_error)."""
+def _threads_asked_for() -> int | None:
+    """The thread count the environment sets, or None under auto: CLOTHPIPE_THREADS=all or an
+    explicit NUMBA_NUM_THREADS keep numba's count (NUMBA_NUM_THREADS), a number sets it (at
+    most that). A value that is none of these counts as auto (`render` refuses it first:
+    threads_setting_error)."""
     limit = numba.config.NUMBA_NUM_THREADS
     value = os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
     if value == "all" or "NUMBA_NUM_THREADS" in os.environ or limit <= 1:
         return limit
     if value.isdigit() and int(value) >= 1:
         return min(limit, int(value))
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not Linux
-        cores = os.cpu_count() or 1
-    return max(1, min(limit, cores - busy_cores()))
+    return None
+
+
+def threads_for_free_cores() -> int:
+    """numba threads for this process's kernels: one per core of its affinity mask that no
+    other process is keeping busy (busy_cores), at least 1, at most NUMBA_NUM_THREADS, unless
+    the environment sets the count (_threads_asked_for).
+
+    Every parallel loop ends on a barrier (several per simulation step), and when the machine
+    has fewer free cores than threads, each barrier waits for a descheduled thread while the
+    others spin: beside one CPU-bound process the README's command simulated 8-22x slower on
+    2 threads than on 1 (benchmarks/load.py). One thread per free core avoids that; results
+    do not depend on the thread count (every parallel loop writes disjoint points)."""
+    asked = _threads_asked_for()
+    if asked is not None:
+        return asked
+    return max(1, min(numba.config.NUMBA_NUM_THREADS, _cores() - busy_cores()))
 
 
 #: whether the thread count follows the load (CLOTHPIPE_THREADS auto, the default)
-_AUTO = (os.environ.get(THREADS_VARIABLE, "auto").strip().lower() != "all"
-         and not os.environ.get(THREADS_VARIABLE, "").strip().isdigit()
-         and "NUMBA_NUM_THREADS" not in os.environ and numba.config.NUMBA_NUM_THREADS > 1)
+_AUTO = _threads_asked_for() is None
 
 #: The threads this process's parallel kernels run on unless told otherwise, chosen once at
 #: import (before any parallel kernel): the main thread's count is set to it here; another
@@ -129,16 +139,13 @@ class _LoadWatch:
     ticks, over the wall time between two looks."""
 
     def __init__(self) -> None:
-        self.cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-            os.cpu_count() or 1)
+        self.cores = _cores()
         self.tick = os.sysconf("SC_CLK_TCK") if hasattr(os, "sysconf") else 100
         self.last = self._look()
         self.free = THREADS
 
     @staticmethod
     def _look() -> tuple[float, int, int] | None:
-        import time
-
         try:
             with open("/proc/stat") as fh:
                 cpu = [int(v) for v in fh.readline().split()[1:9]]
@@ -150,11 +157,7 @@ class _LoadWatch:
         return time.monotonic(), busy, int(own[11]) + int(own[12])
 
     def free_cores(self) -> int:
-        if self.last is None:
-            return self.free
-        import time
-
-        if time.monotonic() - self.last[0] < LOOK_EVERY:
+        if self.last is None or time.monotonic() - self.last[0] < LOOK_EVERY:
             return self.free
         now = self._look()
         if now is None:
@@ -185,6 +188,7 @@ def adjust_threads() -> None:
     if want != current:
         numba.set_num_threads(want)
     _chosen.threads = want
+
 
 # Options of the fragment stage (shading/shade.py) and of the helpers it calls rather than
 # inlines: cached, releases the GIL, no zero-division checks (numpy error model), and
