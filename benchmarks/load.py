@@ -49,6 +49,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from sim import scene_dict  # benchmarks/sim.py: a course scene resized, pins moved along
+
 ROOT = Path(__file__).resolve().parent.parent
 SIM_FRAMES = {50: 90, 100: 60, 200: 20}  # simulator frames per run (~0.3-0.6 s quiet, 2 cores)
 LOADS = {0: "quiet", 1: "1 busy", 2: "2 busy"}
@@ -73,16 +75,6 @@ print(json.dumps(dict(seconds=seconds, digest=digest, layer=numba.threading_laye
 """
 
 
-def pinned2(size: int) -> dict:
-    """scenes/pinned2.json on a size x size grid, its pins moved with the grid."""
-    raw = json.loads((ROOT / "scenes" / "pinned2.json").read_text())
-    c = raw["cloth"]
-    old = c["num_width_points"] - 1
-    c["num_width_points"] = c["num_height_points"] = size
-    c["pinned"] = [[x * (size - 1) // old, y * (size - 1) // old] for x, y in c.get("pinned", [])]
-    return raw
-
-
 def run(cmd: list[str], env: dict, cwd, late: tuple[int, float] | None
         ) -> subprocess.CompletedProcess:
     """subprocess.run; with `late` = (n, seconds), n busy processes start that long after the
@@ -103,7 +95,7 @@ def run_sim(size: int, frames: int, env: dict, tmp: str,
             late: tuple[int, float] | None = None) -> dict:
     # run in an empty folder: `python -c` puts its working directory first on sys.path, and
     # this tree's packages would shadow those PYTHONPATH chooses
-    out = run([sys.executable, "-c", SIM_CODE, json.dumps(pinned2(size)), str(frames)],
+    out = run([sys.executable, "-c", SIM_CODE, json.dumps(scene_dict("pinned2.json", size)), str(frames)],
               env, tmp, late)
     if out.returncode:
         raise RuntimeError(f"simulator case {size}x{size} failed:\n{out.stderr[-2000:]}")

@@ -70,6 +70,8 @@ from typing import Any, NamedTuple
 
 import numpy as np  # the only import outside the standard library: the workers need it too
 
+from sim import scene_dict  # benchmarks/sim.py (standard library only at import)
+
 ROOT = Path(__file__).resolve().parent.parent
 SCENE = ROOT / "scenes" / "pinned2.json"
 REFERENCE = ROOT.parent / "shared" / "reference" / "cs184_ref"
@@ -576,16 +578,6 @@ class PeerProcess:
         self.stderr.close()
 
 
-def scene_dict(size: int) -> dict:
-    """pinned2 at size x size points, its pins moved to the same corners (as sim.py does)."""
-    raw = json.loads(SCENE.read_text())
-    c = raw["cloth"]
-    old = c["num_width_points"] - 1
-    c["num_width_points"] = c["num_height_points"] = size
-    c["pinned"] = [[x * (size - 1) // old, y * (size - 1) // old] for x, y in c.get("pinned", [])]
-    return raw
-
-
 def load_ours() -> tuple[Any, Any]:
     """(Simulation, load_scene) from the public API, retried while another checkout step
     moves the package's modules (an import can fail half-way, so its modules are dropped)."""
@@ -594,7 +586,7 @@ def load_ours() -> tuple[Any, Any]:
         try:
             from pipeline import Simulation, load_scene
 
-            Simulation(scene_dict(5)).advance(1)  # imports the simulator's modules too
+            Simulation(scene_dict("pinned2.json", 5)).advance(1)  # imports the simulator's modules too
             return Simulation, load_scene
         except ImportError as exc:
             if attempt == IMPORT_RETRIES - 1:
@@ -677,7 +669,7 @@ def measure(size: int, peers: list[str], skipped: dict[str, str], vpy: Path, arg
     """The untimed runs, then `args.rounds` rounds of ours and each peer in turn, then the
     final positions of each."""
     Simulation, load_scene = ours
-    raw = scene_dict(size)
+    raw = scene_dict("pinned2.json", size)
     scene = load_scene(raw)
     frames = round(scene.simulation.frames_per_sec)
     steps = frames * scene.simulation.steps_per_frame

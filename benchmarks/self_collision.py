@@ -16,26 +16,23 @@ average is printed.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+from sim import scene_dict  # benchmarks/sim.py: a course scene resized, pins moved along
+
 PER_STEP_AIM = 2.5
 DRAPE_AIM = 4.0  # seconds of simulate for 3 s of animation
 
 
 def self_collision_scene(size: int, on: bool) -> dict:
-    raw = json.loads((ROOT / "scenes" / "selfCollision.json").read_text())
-    raw["cloth"].update(num_width_points=size, num_height_points=size)
+    raw = scene_dict("selfCollision.json", size)
     raw["simulation"] = {**raw.get("simulation", {}), "self_collision": on}
     return raw
 
 
 def drape_scene(size: int = 80) -> dict:
-    raw = json.loads((ROOT / "scenes" / "sphere.json").read_text())
-    raw["cloth"].update(num_width_points=size, num_height_points=size)
+    raw = scene_dict("sphere.json", size)
     raw["plane"] = {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5}
     raw["simulation"] = {**raw.get("simulation", {}), "self_collision": True}
     return raw

@@ -79,10 +79,14 @@ def _cores() -> int:
 THREADS_VARIABLE = "CLOTHPIPE_THREADS"
 
 
+def _threads_setting() -> str:
+    return os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
+
+
 def threads_setting_error() -> str | None:
     """What is wrong with CLOTHPIPE_THREADS, or None: `auto` (the default), `all` or a whole
     number >= 1."""
-    value = os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
+    value = _threads_setting()
     if value in ("auto", "all") or (value.isdigit() and int(value) >= 1):
         return None
     return (f"{THREADS_VARIABLE}: expected auto, all or a whole number >= 1, "
@@ -95,7 +99,7 @@ def _threads_asked_for() -> int | None:
     most that). A value that is none of these counts as auto (`render` refuses it first:
     threads_setting_error)."""
     limit = numba.config.NUMBA_NUM_THREADS
-    value = os.environ.get(THREADS_VARIABLE, "auto").strip().lower()
+    value = _threads_setting()
     if value == "all" or "NUMBA_NUM_THREADS" in os.environ or limit <= 1:
         return limit
     if value.isdigit() and int(value) >= 1:
@@ -120,7 +124,7 @@ def threads_for_free_cores() -> int:
 
 
 #: whether the thread count follows the load (CLOTHPIPE_THREADS auto, the default)
-_AUTO = _threads_asked_for() is None
+_AUTO = _threads_asked_for() is None  # a few environment look-ups, once
 
 #: The threads this process's parallel kernels run on unless told otherwise, chosen once at
 #: import (before any parallel kernel): the main thread's count is set to it here; another

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from clothjit import adjust_threads
+from clothjit import LOOK_EVERY, adjust_threads
 from pipeline.physics.errors import DivergenceError, StabilityWarning
 from pipeline.physics.integrators import integrator_module
 from pipeline.physics.model import ClothModel, build_model
@@ -178,12 +178,22 @@ class Simulation:
 
     def advance(self, frames: int = 1) -> None:
         """Advance by whole frames (steps_per_frame steps each; fidelity auto: as chosen)."""
-        for _ in range(frames):  # frame by frame: the threads may follow the load between
-            if self.stepper is not None:
+        if self.stepper is not None:
+            for _ in range(frames):
                 adjust_threads()
                 self.stepper.advance_frame()
-            else:
-                self.step(self.system.steps_per_frame)
+            return
+        # in runs of about LOOK_EVERY seconds, so that the threads may follow the load between
+        # them (step) without paying a kernel call per frame
+        spf = self.system.steps_per_frame
+        run = 1
+        while frames > 0:
+            run = min(run, frames)
+            start = time.perf_counter()
+            self.step(run * spf)
+            seconds = time.perf_counter() - start
+            frames -= run
+            run = max(1, int(run * LOOK_EVERY / seconds)) if seconds > 0 else frames
 
     def frames(self, count: int):
         """Yield the positions (N, 3) after each of the next `count` frames (views: copy to keep)."""

@@ -109,15 +109,21 @@ def test_threads_follow_the_free_cores_only_where_they_were_chosen(monkeypatch):
 
 
 @pytest.mark.parametrize("fidelity", ["exact", "auto"])
-def test_a_simulation_looks_at_the_load_every_frame(monkeypatch, fidelity):
+def test_a_simulation_looks_at_the_load_between_frames(monkeypatch, fidelity):
     from conftest import cloth_dict, scene_dict
 
     from pipeline import Simulation, simulation
 
     calls = []
     monkeypatch.setattr(simulation, "adjust_threads", lambda: calls.append(1))
+    monkeypatch.setattr(simulation, "LOOK_EVERY", 0.0)  # a look due after every frame
     raw = scene_dict(cloth_dict(6, 6), steps_per_frame=4)
     raw["simulation"]["fidelity"] = fidelity
     sim = Simulation(raw)
     sim.advance(5)
     assert len(calls) == 5
+    if fidelity == "exact":  # with no look due, the frames run in one kernel call after the first
+        monkeypatch.setattr(simulation, "LOOK_EVERY", 1e9)
+        calls.clear()
+        sim.advance(5)
+        assert len(calls) == 2
