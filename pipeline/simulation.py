@@ -89,7 +89,8 @@ class Simulation:
         self.grid_choice = None
         self.grid_reason = ""
         self.grid_seconds = 0.0
-        if auto and grid and self.model.fem is not None and initial_positions is None:
+        if (auto and grid and self.model.fem is not None and self.model.mesh is None
+                and initial_positions is None):
             start = time.perf_counter()
             self._choose_grid(shot_seconds)
             self.grid_seconds = time.perf_counter() - start

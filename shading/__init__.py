@@ -21,7 +21,8 @@ from .camera import Camera
 
 _LAZY = {
     "Mesh": "mesh", "box_mesh": "mesh", "cloth_mesh": "mesh", "normals_tangents": "mesh",
-    "plane_mesh": "mesh", "sphere_mesh": "mesh", "triangle_mesh": "mesh",
+    "plane_mesh": "mesh", "sphere_mesh": "mesh", "triangle_mesh": "mesh", "Seams": "mesh",
+    "cloth_seams": "mesh", "seamed_cloth_mesh": "mesh",
     "Renderer": "renderer", "get_renderer": "renderer", "render": "renderer",
     "REGISTRY": "shaders", "SHADERS": "shaders", "Shader": "shaders", "get_shader": "shaders",
     "TextureError": "textures", "load_texture": "textures", "load_cubemap": "textures",

@@ -194,6 +194,50 @@ def cloth_mesh(positions, nw: int, nh: int, edges=None, colour=CLOTH_COLOUR) -> 
                 edges, "cloth")
 
 
+@dataclass(frozen=True, eq=False)
+class Seams:
+    """How a cloth given as triangles with a uv per corner is drawn: one render vertex per
+    distinct (point, uv), so uv seams stay sharp while the normals are welded across them
+    (SPEC section 3). Arrays read-only."""
+
+    triangles: np.ndarray  # (T, 3) int32 render vertices
+    point: np.ndarray  # (V,) int64: the cloth point of each render vertex
+    uvs: np.ndarray  # (V, 2) float64
+    weld: np.ndarray  # (V,) int64: the render vertex whose normal sums it shares
+    edges: np.ndarray | None  # (E, 2) int32 wireframe lines between render vertices
+
+
+def cloth_seams(triangles, corner_uv, edges=None) -> Seams:
+    """The Seams of a cloth of `triangles` (T, 3) points with `corner_uv` (T, 3, 2); `edges`
+    (E, 2) point pairs for the wireframe, drawn between each point's first render vertex."""
+    tris = np.asarray(triangles, dtype=np.int64)
+    corners = np.concatenate([tris.reshape(-1, 1).astype(np.float64),
+                              np.asarray(corner_uv, dtype=np.float64).reshape(-1, 2)], axis=1)
+    _, first, inverse = np.unique(corners, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # render vertices in order of first corner
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    vertex = rank[inverse.reshape(-1)]
+    point = tris.reshape(-1)[first[order]]
+    uvs = corners[first[order], 1:]
+    first_of_point = np.full(int(tris.max()) + 1, -1, dtype=np.int64)
+    first_of_point[point[::-1]] = np.arange(len(point))[::-1]
+    weld = first_of_point[point]
+    lines = None if edges is None else first_of_point[np.asarray(edges)].astype(np.int32)
+    out = Seams(vertex.reshape(-1, 3).astype(np.int32), point, uvs, weld, lines)
+    for arr in (out.triangles, out.point, out.uvs, out.weld) + (() if lines is None else (lines,)):
+        arr.flags.writeable = False
+    return out
+
+
+def seamed_cloth_mesh(positions, seams: Seams, colour=CLOTH_COLOUR) -> Mesh:
+    """A cloth of points at `positions` (N, 3) drawn through its Seams."""
+    pos = np.ascontiguousarray(np.asarray(positions, dtype=np.float64)[seams.point])
+    nrm, tan = normals_tangents(pos, seams.uvs, seams.triangles, weld_n=seams.weld)
+    return Mesh(pos, nrm, seams.uvs, tan, seams.triangles, np.asarray(colour, dtype=np.float64),
+                seams.edges, "cloth")
+
+
 @lru_cache(maxsize=4)
 def _unit_sphere(n: int):
     th = np.linspace(0.0, np.pi, n + 1)  # from the +y pole down

@@ -390,8 +390,8 @@ def test_a_systems_kept_type_is_numbas_own():
 
 
 @njit(cache=True)
-def _limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
-    limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch)
+def _limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
+    limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch)
 
 
 def test_provots_pre_pass_in_parallel_chunks_limits_as_in_one_call(rng):
@@ -409,7 +409,7 @@ def test_provots_pre_pass_in_parallel_chunks_limits_as_in_one_call(rng):
     for loop in (_mark_in_chunks, _mark_serially):
         scratch = s.mask._replace(mark=KernelPointer(loop, s.mask.mark.argtypes))
         x = stretched.copy()
-        _limit_stretch(x, s.springs[0], s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, scratch)
+        _limit_stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, scratch)
         ends.append(x)
     assert not np.array_equal(ends[0], stretched)  # the limit acted
     assert ends[0].tobytes() == ends[1].tobytes()

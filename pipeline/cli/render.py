@@ -338,14 +338,12 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     t0 = time.perf_counter()
     if npz_w is not None:
-        cloth = scene_meshes(scene, sim.positions.copy(), model)[0]
         spf = scene.simulation.steps_per_frame
         npz_w.set_meta(
             times=np.array(plan.out_times, np.float64),
             sim_frames=np.array(plan.sim_frames, np.int64),
             sim_times=np.array([j / plan.sim_fps for j in plan.sim_frames], np.float64),
-            faces=np.asarray(cloth.triangles, np.int32),
-            uv=np.asarray(cloth.uvs, np.float64),
+            **cloth_faces(scene, model, scene_meshes),
             grid=np.array([model.nh, model.nw], np.int64),
             fps=np.float64(plan.fps), sim_fps=np.float64(plan.sim_fps),
             steps_per_frame=np.int64(spf),
@@ -353,6 +351,18 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     timers.encode += time.perf_counter() - t0
     notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
+
+
+def cloth_faces(scene, model, scene_meshes) -> dict:
+    """The NPZ export's faces and uvs: the grid's triangles and point uvs; a mesh cloth's
+    triangles of its points, a uv per point and per face corner (seams split them)."""
+    if model.mesh is not None:
+        topo = model.mesh.topology
+        return {"faces": np.asarray(topo.triangles, np.int32), "uv": topo.point_uv,
+                "face_uv": topo.corner_uv}
+    cloth = scene_meshes(scene, model.initial_positions, model)[0]
+    return {"faces": np.asarray(cloth.triangles, np.int32),
+            "uv": np.asarray(cloth.uvs, np.float64)}
 
 
 def finish(args, err: Errors, plan: Plan, writers: dict, golden, timers: _Timers,

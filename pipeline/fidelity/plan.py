@@ -122,6 +122,9 @@ def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:
         floor = math.ceil(COARSE_RATIO * floor)
     floor = max(2, floor)
     implicit = IMPLICIT_COST[sim.model] * sim.steps_per_frame
+    if scene.cloth.mesh is not None:
+        return "verlet", [f"Verlet at >= {floor} steps per frame (dt_max {dt_max:.3g} s): "
+                          "implicit Euler does not step a mesh cloth yet"]
     why = (f"Verlet needs >= {floor} steps per frame for stability (dt_max {dt_max:.3g} s); "
            f"implicit Euler at the file's {sim.steps_per_frame} would cost about "
            f"{implicit:.0f} Verlet steps per frame")

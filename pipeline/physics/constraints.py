@@ -128,12 +128,14 @@ def _mark_after(r, p, d, offsets, exist_bits, mask):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
-def limit_stretch(x, offsets, exist_bits, limit, limit_sq_lo, pinned, scratch):
+def limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
 
     Half the correction goes to each end, all of it to the free end if one end is pinned,
-    none if both are. `scratch` comes from candidate_mask.
+    none if both are. `springs` is System.springs (the grid's: offsets first), `scratch`
+    comes from candidate_mask.
     """
+    offsets = springs[0]
     n = x.shape[1]
     scratch.mark(x, offsets, exist_bits, limit_sq_lo, CandidateMask(*scratch[:-1], None))
     mask = scratch.mask

@@ -178,9 +178,8 @@ def force_fields(s) -> tuple:
     """The System's fields the forces read, as one argument of `forces_of` (plain Python
     when Python calls it, inlined in kernels). The pointer comes last: numba tries to unify
     a plain tuple starting with a function as a tuple of functions, and warns."""
-    offsets, order, exists, rest, stiffness = s.springs
-    return (s.fem, offsets, order, exists, rest, stiffness, s.mass, s.gravity, s.spring_force,
-            s.kernels.springs, s.wind, s.kernels.wind, s.kernels.internal)
+    return (s.fem, s.springs, s.mass, s.gravity, s.spring_force, s.kernels.springs, s.wind,
+            s.kernels.wind, s.kernels.internal)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -189,10 +188,8 @@ def forces_of(x, v, t, fields, f):
     Python it compiles once per System kind (system.StepKernels; its entry point
     unboxes these fields; one taking the System compiled again for every System type,
     2-3 s each, and unboxed all of it)."""
-    (fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force, passes, wind,
-     wind_force, internal) = fields
-    internal(x, fem, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
-             passes, f)
+    fem, springs, mass, gravity, spring_force, passes, wind, wind_force, internal = fields
+    internal(x, fem, springs, mass, gravity, spring_force, passes, f)
     add_other_forces(x, v, t, wind, wind_force, f)
 
 
@@ -201,18 +198,18 @@ def forces_of(x, v, t, fields, f):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
-def internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                    spring_force, passes, f):
-    """f[:] = gravity + the springs' forces (the classic model; `fem` unused; `passes` the
-    SpringKernels). Called through System.kernels.internal (a KernelPointer), as
-    fem_internal_forces with the FEM."""
+def internal_forces(x, fem, springs, mass, gravity, spring_force, passes, f):
+    """f[:] = gravity + the springs' forces (the grid's classic model; `fem` unused;
+    `springs` System.springs, `passes` the SpringKernels). Called through
+    System.kernels.internal (a KernelPointer), as fem_internal_forces with the FEM and
+    pipeline.physics.mesh_forces' kernels for a mesh cloth."""
+    offsets, order, exists, rest, stiffness = springs
     spring_forces(x, offsets, order, exists, rest, stiffness, mass, gravity, spring_force,
                   passes, f)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
-def fem_internal_forces(x, fem, offsets, order, exists, rest, stiffness, mass, gravity,
-                        spring_force, passes, f):
+def fem_internal_forces(x, fem, springs, mass, gravity, spring_force, passes, f):
     """f[:] = gravity + the FEM's elastic forces (the springs' arguments unused). A kernel
     of its own, chosen in Python: one kernel testing the model would compile both models'
     forces."""

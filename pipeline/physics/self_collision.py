@@ -168,13 +168,13 @@ def _squared_distances(px, py, pz, xs, lo, hi, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
-def self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch):
-    """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel)."""
+def self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch):
+    """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel);
+    the boxes are box_w x box_h x max(box_w, box_h) (collision_box)."""
     bucket_of, start, members, xs, slot_of, dist_sq = (
         scratch[5], scratch[6], scratch[8], scratch[9], scratch[10], scratch[11])
     n = x.shape[1]
-    w = (3.0 * width) / nw
-    h = (3.0 * height) / nh
+    w, h = box_w, box_h
     t = max(w, h)
     threshold = 2.0 * thickness
     threshold_sq_hi = threshold * threshold * (1.0 + 1e-9)

@@ -14,7 +14,7 @@ from numba.core import types
 from numba.extending import register_jitable, typeof_impl
 
 from clothjit import KernelPointer, njit
-from pipeline.scene import Scene
+from pipeline.scene import Scene, SceneError
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
@@ -22,6 +22,10 @@ from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_s
 from .fem import FemParams, estimate_omega_max, no_fem
 from .forces import (SpringKernels, direction_offsets, fem_internal_forces, gather_order,
                      internal_forces, spring_force_buffer, spring_kernels)
+from .mesh_forces import mesh_fem_internal_forces, mesh_internal_forces, mesh_limit_stretch
+from .mesh_model import MeshSprings
+from .pin_motion import PinMotion, move_pins
+from .mesh_wind import MeshWind, add_mesh_wind_force, pack_mesh_wind
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
 from .reach import Reach, new_reach, reach_check
 from .self_collision import SelfCollisionScratch, self_collide
@@ -56,10 +60,8 @@ class StepKernels(NamedTuple):
 
 
 class System(NamedTuple):
-    nw: int
-    nh: int
-    width: float
-    height: float
+    classic: bool  # the classic mass-spring model (Provot's limit applies), else the FEM
+    collision_box: tuple  # (w, h) of the self-collision boxes, m (the third side max(w, h))
     thickness: float
     x0: np.ndarray  # (3, N)
     pinned: np.ndarray  # (N,) uint8
@@ -74,12 +76,13 @@ class System(NamedTuple):
     force_dt2: float  # factor of F/m in Verlet's update: dt^2 (the course), see verlet.py
     steps_per_frame: int
     colliders: ColliderTable
-    wind: WindParams | None  # still air (`on` False) or None without wind (StepKernels)
+    wind: WindParams | MeshWind | None  # still air (`on` False) or None without wind (StepKernels)
     # the finite-element model; a classic System's has no points (fem.no_fem) and its
     # kernels absent, so that both models' Systems have one type (StepKernels)
     fem: FemParams
-    # the springs' (offsets, gather_order, exists, rest, stiffness): one field, not five
-    # (numba's compile time grows with the System's arrays)
+    # the grid's springs (offsets, gather_order, exists, rest, stiffness): one field, not
+    # five (numba's compile time grows with the System's arrays); a mesh cloth's
+    # mesh_model.MeshSprings
     springs: tuple
     needs_velocity: bool  # some force depends on the velocity (Verlet then estimates it)
     self_collision: bool  # the scene turns self-collision on
@@ -89,12 +92,8 @@ class System(NamedTuple):
     slack_speed: float  # speed every point may gain without energy input (m/s), see guard
     reach: Reach  # which passes can act (pipeline.physics.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
+    pin_motion: PinMotion | None  # a mesh cloth's keyframed pins; None: pins stay put
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
-
-    @property
-    def classic(self) -> bool:
-        """The classic mass-spring model (else the FEM); kernels test `fem.nw == 0`."""
-        return self.fem.nw == 0
 
 
 # numba types a kernel's arguments in C when it can fingerprint them (arrays, numbers and
@@ -123,7 +122,10 @@ def _typeof_system(system: System, c):
 
 def build_system(scene: Scene, model: ClothModel) -> System:
     sim = scene.simulation
-    limit, limit_sq_lo = stretch_limits(model.rest)
+    mesh = model.mesh
+    if mesh is not None:
+        refuse_for_mesh(scene)
+    limit, limit_sq_lo = stretch_limits(model.rest if mesh is None else mesh.springs.rest[None])
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
     either = scene.wind is not None or scene.self_collision  # see StepKernels
     centre = model.x0.mean(axis=1)
@@ -131,10 +133,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
     extent = max([float(np.linalg.norm(np.subtract(c.pivot, centre))) for c in scene.colliders]
                  + [0.0]) + math.hypot(model.width, model.height)
     system = System(
-        nw=model.nw,
-        nh=model.nh,
-        width=model.width,
-        height=model.height,
+        classic=model.fem is None,
+        collision_box=collision_box(model),
         thickness=model.thickness,
         x0=model.x0,
         pinned=model.pinned,
@@ -149,19 +149,25 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         force_dt2=dt * dt,
         steps_per_frame=int(sim.steps_per_frame),
         colliders=pack_colliders(scene.colliders, model.n),
-        wind=pack_wind(scene.wind, sim.seed, model.nw, model.nh) if either else None,
+        wind=(None if not either else pack_wind(scene.wind, sim.seed, model.nw, model.nh)
+              if mesh is None else
+              pack_mesh_wind(scene.wind, sim.seed, mesh.topology.triangles, model.n)),
         fem=model.fem if model.fem is not None else no_fem(),
-        springs=(offsets, order, model.exists, model.rest, model.stiffness),
+        springs=((offsets, order, model.exists, model.rest, model.stiffness) if mesh is None
+                 else mesh.springs),
         needs_velocity=scene.wind is not None,
         self_collision=bool(scene.self_collision),
         scratch=(SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple()
                  if either else None),
-        spring_force=spring_force_buffer(model.n, model.nw),
-        mask=candidate_mask(model.n, present=model.fem is None),
+        spring_force=(spring_force_buffer(model.n, model.nw) if mesh is None
+                      else np.zeros((1, 3, len(mesh.springs.a)))),
+        mask=candidate_mask(model.n, present=model.fem is None and mesh is None),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
-        + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent),
+        + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent)
+        + (0.0 if mesh is None else mesh.pin_speed),
         reach=new_reach(model.n),
         colliders_last=False,
+        pin_motion=None if mesh is None else mesh.pin_motion,
     )
     return system._replace(kernels=step_kernels(system))
 
@@ -170,25 +176,57 @@ def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
     classic = s.classic
-    offsets, order, exists, rest, stiffness = s.springs
-    springs = spring_kernels(
-        offsets, exists, rest, stiffness, s.spring_force, order, s.mass,
-        s.gravity, classic)
+    mesh = isinstance(s.springs, MeshSprings)
+    grid = spring_tuple(s.x0.shape[1]) if mesh else s.springs
+    offsets, order, exists, rest, stiffness = grid
+    springs = spring_kernels(  # a mesh cloth's are absent, typed as an empty grid's
+        offsets, exists, rest, stiffness, spring_force_buffer(0, 0) if mesh else s.spring_force,
+        order, s.mass, s.gravity, classic and not mesh)
+    internal = ((mesh_internal_forces if classic else mesh_fem_internal_forces) if mesh
+                else (internal_forces if classic else fem_internal_forces))
     return StepKernels(
-        internal=KernelPointer(internal_forces if classic else fem_internal_forces, (
-            field, s.fem, offsets, order, exists, rest, stiffness, s.mass,
-            s.gravity, s.spring_force, springs, field)),
+        internal=KernelPointer(internal, (
+            field, s.fem, s.springs, s.mass, s.gravity, s.spring_force, springs, field)),
         springs=springs,
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),
-        stretch=KernelPointer(limit_stretch, (
-            field, offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
+        stretch=KernelPointer(mesh_limit_stretch if mesh else limit_stretch, (
+            field, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
             present=classic),
         self_collide=None if s.scratch is None else KernelPointer(self_collide, (
-            field, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness, s.steps_per_frame,
+            field, s.pinned, *s.collision_box, s.thickness, s.steps_per_frame,
             s.scratch), present=s.self_collision),
         wind=None if s.wind is None else KernelPointer(
-            add_wind_force, (field, field, 0.0, s.wind, field), present=s.wind.on),
+            add_mesh_wind_force if mesh else add_wind_force, (field, field, 0.0, s.wind, field),
+            present=s.wind.on),
         reach=KernelPointer(reach_check, (field, s.reach, s.colliders.active, s.thickness)))
+
+
+#: integrators that step a mesh cloth (the others' kernels are written for the grid)
+MESH_INTEGRATORS = ("verlet", "euler", "symplectic-euler", "rk4")
+
+
+def refuse_for_mesh(scene: Scene) -> None:
+    """SceneError for what a mesh cloth cannot run with yet."""
+    file, sim = scene.source or "scene", scene.simulation
+    if sim.integrator not in MESH_INTEGRATORS and sim.fidelity != "auto":
+        raise SceneError(f"{file}: simulation.integrator: {sim.integrator!r} is not available "
+                         f"for a mesh cloth (cloth.mesh) yet; expected one of "
+                         f"{', '.join(MESH_INTEGRATORS)}")
+
+
+def spring_tuple(n: int) -> tuple:
+    """The grid's springs tuple (System.springs) of a cloth of n points and no springs."""
+    return (direction_offsets(0), gather_order(0), np.zeros((6, n), dtype=bool),
+            np.zeros((6, n)), np.zeros(6))
+
+
+def collision_box(model: ClothModel) -> tuple[float, float]:
+    """(w, h) of the self-collision boxes (SPEC section 2): 3 width / num_width_points and
+    3 height / num_height_points for the grid, 3 x the mean rest edge length for a mesh."""
+    if model.mesh is not None:
+        side = 3.0 * model.mesh.topology.mean_edge
+        return side, side
+    return (3.0 * model.width) / model.nw, (3.0 * model.height) / model.nh
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
@@ -270,6 +308,9 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     fill a region larger than a wavelength, as a uniform cloth with a heavier hem does).
     """
     keep = math.sqrt(2.0 * (2.0 - model.damping))
+    if model.mesh is not None:
+        omega_max = mesh_omega_max(model)
+        return omega_max, (keep / omega_max if omega_max > 0.0 else math.inf)
     if model.fem is not None:
         omega_max = estimate_omega_max(model.fem, model.point_mass)
         return omega_max, (keep / omega_max if omega_max > 0.0 else math.inf)
@@ -301,6 +342,37 @@ def stability_limit(model: ClothModel, samples: int = 181) -> tuple[float, float
     if omega_max == 0.0:
         return 0.0, math.inf
     return omega_max, keep / omega_max
+
+
+def mesh_omega_max(model: ClothModel, iterations: int = 60) -> float:
+    """omega_max of a mesh cloth: power iteration on M^-1 K at rest, K y from central
+    differences of the mesh's forces (pipeline.physics.mesh_forces), pins ignored as the
+    grid's lattice bound ignores them. The estimate approaches the largest eigenvalue from
+    below, so it is raised by 5 %."""
+    from .mesh_forces import mesh_fem_forces, mesh_spring_forces
+
+    x0 = np.ascontiguousarray(model.x0)
+    mass, gravity = model.point_mass, np.zeros(3)
+    plus, minus = np.zeros_like(x0), np.zeros_like(x0)
+    buffer = np.zeros((3, len(model.mesh.springs.a)))
+
+    def forces(x, out):
+        if model.fem is None:
+            mesh_spring_forces(x, model.mesh.springs, mass, gravity, buffer, out)
+        else:
+            mesh_fem_forces(x, model.fem, mass, gravity, out)
+
+    y = np.random.default_rng(0).standard_normal(x0.shape)
+    eps = 1e-6 * model.mesh.topology.mean_edge
+    lam = 0.0
+    for _ in range(iterations):
+        y /= np.linalg.norm(y)
+        forces(x0 + eps * y, plus)
+        forces(x0 - eps * y, minus)
+        ky = -(plus - minus) / (2.0 * eps) / mass  # M^-1 K y, K = -df/dx
+        lam = float(np.sum(y * ky))
+        y = ky
+    return 1.05 * math.sqrt(max(lam, 0.0))
 
 
 @register_jitable(inline="always")
@@ -341,27 +413,27 @@ def position_passes(x, last, system, t_start):
     proves idle are skipped."""
     s = system
     k = s.kernels
+    move_pins(x, last, s.pin_motion, t_start + s.dt)
     k.reach(x, s.reach, s.colliders.active, s.thickness)
-    _self_collision_pass(x, s.pinned, s.width, s.height, s.nw, s.nh, s.thickness,
-                         s.steps_per_frame, s.scratch, k.self_collide, s.self_collision,
-                         s.reach.self_on, s.reach.counts)
+    box_w, box_h = s.collision_box
+    _self_collision_pass(x, s.pinned, box_w, box_h, s.thickness, s.steps_per_frame, s.scratch,
+                         k.self_collide, s.self_collision, s.reach.self_on, s.reach.counts)
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    if s.fem.nw == 0:  # the classic model (the FEM's stretch pointer is absent)
-        offsets = s.springs[0]
-        k.stretch(x, offsets, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
+    if s.classic:  # the FEM's stretch pointer is absent
+        k.stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _self_collision_pass(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch,
+def _self_collision_pass(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch,
                          self_collide, on, self_on, counts):
     # `self_collide` is None (numba prunes the pass) or absent (never compiled: 5 s on a
     # first run) when the scene turns self-collision off (`on` False)
     if self_collide is not None and on and self_on[0]:
         counts[1] += 1
-        self_collide(x, pinned, width, height, nw, nh, thickness, steps_per_frame, scratch)
+        self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)

@@ -45,6 +45,16 @@ def _cached_edges(model) -> np.ndarray:
     return e
 
 
+def cloth_seams(model):
+    """shading.Seams of a mesh cloth's model, built once per model object."""
+    seams = getattr(model, "_render_seams", None)
+    if seams is None:
+        topo = model.mesh.topology
+        seams = shading.cloth_seams(topo.triangles, topo.corner_uv, _cached_edges(model))
+        object.__setattr__(model, "_render_seams", seams)
+    return seams
+
+
 BOX_INSET = 2e-3  # metres: a box is drawn this much smaller on every side
 _KIND_NAMES = {Sphere: "sphere", Plane: "plane", Box: "box", MeshCollider: "mesh"}
 
@@ -83,8 +93,11 @@ def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:
     (read-only)."""
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
     colour = scene.render.params.get("k_d", shading.mesh.CLOTH_COLOUR)  # the cloth's k_d
-    cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model),
-                               colour=colour)
+    if model.mesh is not None:
+        cloth = shading.seamed_cloth_mesh(pos, cloth_seams(model), colour=colour)
+    else:
+        cloth = shading.cloth_mesh(pos, model.nw, model.nh, edges=_cached_edges(model),
+                                   colour=colour)
     meshes = [cloth]
     counts: dict[type, int] = {}
     for c in scene.colliders:

@@ -12,13 +12,14 @@ from __future__ import annotations
 from .check import scene_schema
 from .load import SceneFile, apply_overrides, load_scene
 from .types import (COLLIDER_KEYS, COURSE_CAMERA, INTEGRATORS, MODELS, RENDER_PARAMS, SHADERS, Box,
-                    CameraSettings, Cloth, Collider, FemMaterial, Keyframe, LightSettings,
-                    MeshCollider, Plane, RenderSettings, Scene, SceneError, SimulationSettings,
-                    Sphere, Wind)
+                    CameraSettings, Cloth, ClothMeshSource, Collider, FemMaterial, Keyframe,
+                    LightSettings, MeshCollider, PinSelection, Plane, RenderSettings, Scene,
+                    SceneError, SimulationSettings, Sphere, Wind)
 
 __all__ = [
-    "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "Sphere", "Plane", "Box",
-    "MeshCollider", "Keyframe", "Collider", "Wind", "FemMaterial", "MODELS", "SimulationSettings",
-    "CameraSettings", "COURSE_CAMERA", "LightSettings", "RenderSettings", "COLLIDER_KEYS", "Scene",
-    "SceneFile", "load_scene", "apply_overrides", "scene_schema"
+    "INTEGRATORS", "SHADERS", "RENDER_PARAMS", "SceneError", "Cloth", "ClothMeshSource",
+    "PinSelection", "Sphere", "Plane", "Box", "MeshCollider", "Keyframe", "Collider", "Wind",
+    "FemMaterial", "MODELS", "SimulationSettings", "CameraSettings", "COURSE_CAMERA",
+    "LightSettings", "RenderSettings", "COLLIDER_KEYS", "Scene", "SceneFile", "load_scene",
+    "apply_overrides", "scene_schema"
 ]

@@ -180,11 +180,47 @@ def _describe(sch: dict, root: dict) -> str:
     return ""
 
 
+#: the keys of a grid cloth that a mesh cloth takes from its file
+GRID_ONLY_KEYS = ("width", "height", "num_width_points", "num_height_points", "orientation")
+#: the keys that place a mesh cloth (meaningless for a grid)
+MESH_ONLY_KEYS = ("translation", "rotation", "scale", "pieces")
+
+
+def check_cloth_form(data: dict) -> None:
+    """A cloth is a grid or a mesh, not both: the grid keys are refused together with
+    `cloth.mesh`, the mesh's placement keys without it. Made before the schema, so that the
+    message says which key is out of place (and not what the other form would need)."""
+    cloth = data.get("cloth")
+    if not isinstance(cloth, dict):
+        return
+    if "mesh" in cloth:
+        for key in GRID_ONLY_KEYS:
+            if key in cloth:
+                path: list[PathItem] = ["cloth", key]
+                raise Problem(path, f"{fmt_path(path)}: not allowed together with cloth.mesh "
+                                     f"(a mesh cloth takes its size and shape from the file; "
+                                     f"place it with translation, rotation and scale)")
+    else:
+        for key in MESH_ONLY_KEYS:
+            if key in cloth:
+                path = ["cloth", key]
+                raise Problem(path, f"{fmt_path(path)}: only allowed together with cloth.mesh "
+                                     f"(it places a mesh cloth; a grid cloth is given by width, "
+                                     f"height, num_width_points, num_height_points and "
+                                     f"orientation)")
+
+
 def check_semantics(data: dict) -> None:
     """The checks JSON Schema cannot express. `data` already passed the schema."""
     cloth = data["cloth"]
-    nw, nh = cloth["num_width_points"], cloth["num_height_points"]
-    for i, pin in enumerate(cloth.get("pinned", ())):
+    if "mesh" in cloth:
+        _check_mesh_cloth(cloth)
+        pins = ()
+        nw = nh = 0
+    else:
+        pins = cloth.get("pinned", ())
+        nw, nh = cloth["num_width_points"], cloth["num_height_points"]
+    for i, pin in enumerate(pins):
         x, y = pin
         path: list[PathItem] = ["cloth", "pinned", i]
         if x >= nw:
@@ -202,13 +238,7 @@ def check_semantics(data: dict) -> None:
                 raise Problem(path, f"{fmt_path(path)}: expected a non-zero vector, "
                                      f"got {show(pl['normal'])}")
     for path, obj in collider_items(data):
-        times = [k["time"] for k in obj.get("keyframes", ())]
-        for i in range(1, len(times)):
-            if not times[i] > times[i - 1]:
-                kp = path + ["keyframes", i, "time"]
-                raise Problem(kp, f"{fmt_path(kp)}: keyframes out of order: expected a time "
-                                   f"> {_num(times[i - 1])} (the previous key's), got "
-                                   f"{_num(times[i])}")
+        _check_keyframe_order(path, obj)
     rows = cloth.get("mass_map")
     if isinstance(rows, list) and len({len(r) for r in rows}) > 1:
         path = ["cloth", "mass_map"]
@@ -234,6 +264,57 @@ def check_semantics(data: dict) -> None:
                                              f"{show(view)}), got {show(up)}")
 
 
+def _check_keyframe_order(path: list[PathItem], obj: dict) -> None:
+    times = [k["time"] for k in obj.get("keyframes", ())]
+    for i in range(1, len(times)):
+        if not times[i] > times[i - 1]:
+            kp = path + ["keyframes", i, "time"]
+            raise Problem(kp, f"{fmt_path(kp)}: keyframes out of order: expected a time "
+                               f"> {_num(times[i - 1])} (the previous key's), got "
+                               f"{_num(times[i])}")
+
+
+PIN_FORMS = ("indices", "box", "group")
+
+
+def pin_items(cloth: dict):
+    """(key path, raw item) of every selection of a mesh cloth's `pinned`, in file order:
+    a lone object is the path ['cloth', 'pinned'], list items ['cloth', 'pinned', i]."""
+    pinned = cloth.get("pinned")
+    if isinstance(pinned, dict):
+        yield ["cloth", "pinned"], pinned
+    elif isinstance(pinned, list):
+        for i, item in enumerate(pinned):
+            yield ["cloth", "pinned", i], item
+
+
+def _check_mesh_cloth(cloth: dict) -> None:
+    if isinstance(cloth.get("mass_map"), list):
+        path: list[PathItem] = ["cloth", "mass_map"]
+        raise Problem(path, f"{fmt_path(path)}: a list of rows is for a grid cloth only: "
+                             f"expected an image path for a mesh cloth (sampled by the "
+                             f"mesh's uv)")
+    for path, item in pin_items(cloth):
+        if not isinstance(item, dict):
+            continue
+        forms = [k for k in PIN_FORMS if k in item]
+        if len(forms) != 1:
+            got = "none of them" if not forms else " and ".join(forms)
+            raise Problem(path, f"{fmt_path(path)}: expected exactly one of indices, box, "
+                                 f"group, got {got}")
+        if "box" in item:
+            lo, hi = item["box"]
+            for axis in range(3):
+                if lo[axis] > hi[axis]:
+                    bp = path + ["box"]
+                    box = "[" + ", ".join("[" + ", ".join(_num(c) for c in p) + "]"
+                                          for p in (lo, hi)) + "]"
+                    raise Problem(bp, f"{fmt_path(bp)}: expected [lo, hi] with lo <= hi in "
+                                       f"every axis, got {box} ({'xyz'[axis]}: "
+                                       f"{_num(lo[axis])} > {_num(hi[axis])})")
+        _check_keyframe_order(path, item)
+
+
 def collider_items(data: dict):
     """(key path, raw object) of every collider, in file order."""
     for key in data:
@@ -250,9 +331,14 @@ CUBE_FACES = ("posx", "negx", "posy", "negy", "posz", "negz")
 
 
 def check_files(data: dict, base_dir: Path) -> None:
-    """Every file the scene names must exist and be readable, whatever the shader: mesh
-    colliders (readable by trimesh, watertight when solid), an image mass map, the render
-    texture and height map (images) and the cube map (a folder of six face images)."""
+    """Every file the scene names must exist and be readable, whatever the shader: a mesh
+    cloth and mesh colliders (readable by trimesh; a collider watertight when solid; a
+    cloth's own checks, manifold, one piece, ..., come when it is built, in
+    pipeline.physics.cloth_mesh), an image mass map, the render texture and height map
+    (images) and the cube map (a folder of six face images)."""
+    cloth_mesh = data["cloth"].get("mesh")
+    if cloth_mesh is not None:
+        _check_mesh_file(["cloth", "mesh"], resolve_path(base_dir, cloth_mesh), False)
     for path, obj in collider_items(data):
         if path[0] == "mesh":
             _check_mesh_file(path + ["path"], resolve_path(base_dir, obj["path"]),

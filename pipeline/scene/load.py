@@ -15,11 +15,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from .check import (PathItem, Problem, check_files, check_finite, check_semantics, collider_items,
-                    fmt_path, kind_of, resolve_path, show, validate_schema)
+from .check import (PathItem, Problem, check_cloth_form, check_files, check_finite,
+                    check_semantics, collider_items, fmt_path, kind_of, pin_items, resolve_path,
+                    show, validate_schema)
 from .types import (COLLIDER_KEYS, COURSE_CAMERA, RENDER_PARAMS, VEC3_PARAMS, Box, CameraSettings,
-                    Cloth, Collider, FemMaterial, Keyframe, LightSettings, MeshCollider, Plane,
-                    RenderSettings, Scene, SceneError, SimulationSettings, Sphere, Vec3, Wind)
+                    Cloth, ClothMeshSource, Collider, FemMaterial, Keyframe, LightSettings,
+                    MeshCollider, PinSelection, Plane, RenderSettings, Scene, SceneError,
+                    SimulationSettings, Sphere, Vec3, Wind)
 
 _TOP_KEYS = ("cloth", "sphere", "plane", "box", "mesh", "wind", "simulation", "camera", "light",
              "render")
@@ -85,6 +87,7 @@ def load_scene(source: str | os.PathLike | dict | SceneFile,
 
     try:
         check_finite(data, [])
+        check_cloth_form(data)
         validate_schema(data)
         check_semantics(data)
         check_files(data, base_dir)
@@ -245,20 +248,7 @@ def _blame(path: list[PathItem] | None, touched: list[tuple[list[PathItem], str]
 
 
 def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
-    c = data["cloth"]
-    cloth = Cloth(
-        width=float(c["width"]), height=float(c["height"]),
-        num_width_points=int(c["num_width_points"]), num_height_points=int(c["num_height_points"]),
-        thickness=float(c["thickness"]), orientation=int(c["orientation"]),
-        damping=float(c["damping"]), density=float(c["density"]), ks=float(c["ks"]),
-        enable_structural=bool(c["enable_structural"]),
-        enable_shearing=bool(c["enable_shearing"]),
-        enable_bending=bool(c["enable_bending"]),
-        pinned=tuple((int(x), int(y)) for x, y in c.get("pinned", ())),
-        mass_map=_mass_map(c.get("mass_map"), base_dir),
-        mass_map_range=tuple(float(v) for v in c.get("mass_map_range", Cloth.mass_map_range)),
-        fem=FemMaterial(**{k: float(v) for k, v in c.get("fem", {}).items()}),
-    )
+    cloth = _cloth(data["cloth"], base_dir)
     colliders = [_collider(path[0], obj, base_dir) for path, obj in collider_items(data)]
     wind = None
     if "wind" in data:
@@ -311,6 +301,45 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
     )
     return Scene(cloth=cloth, colliders=tuple(colliders), wind=wind, simulation=simulation,
                  camera=camera, light=light, render=render, source=src_path)
+
+
+def _cloth(c: dict, base_dir: Path) -> Cloth:
+    common = dict(
+        thickness=float(c["thickness"]), damping=float(c["damping"]),
+        density=float(c["density"]), ks=float(c["ks"]),
+        enable_structural=bool(c.get("enable_structural", True)),
+        enable_shearing=bool(c.get("enable_shearing", True)),
+        enable_bending=bool(c.get("enable_bending", True)),
+        mass_map=_mass_map(c.get("mass_map"), base_dir),
+        mass_map_range=tuple(float(v) for v in c.get("mass_map_range", Cloth.mass_map_range)),
+        fem=FemMaterial(**{k: float(v) for k, v in c.get("fem", {}).items()}),
+    )
+    if "mesh" not in c:
+        return Cloth(
+            width=float(c["width"]), height=float(c["height"]),
+            num_width_points=int(c["num_width_points"]),
+            num_height_points=int(c["num_height_points"]), orientation=int(c["orientation"]),
+            pinned=tuple((int(x), int(y)) for x, y in c.get("pinned", ())), **common)
+    zero = (0.0, 0.0, 0.0)
+    scale = c.get("scale", 1.0)
+    source = ClothMeshSource(
+        path=resolve_path(base_dir, c["mesh"]), translation=_vec3(c.get("translation", zero)),
+        rotation=_vec3(c.get("rotation", zero)),
+        scale=_vec3(scale) if isinstance(scale, list) else (float(scale),) * 3,
+        pieces_allowed=c.get("pieces", "refuse") == "allow")
+    pins = []
+    for path, item in pin_items(c):
+        key = fmt_path(path)
+        if isinstance(item, dict):
+            pins.append(PinSelection(
+                key=key, indices=tuple(int(i) for i in item.get("indices", ())),
+                box=(_vec3(item["box"][0]), _vec3(item["box"][1])) if "box" in item else None,
+                group=str(item["group"]) if "group" in item else None,
+                keyframes=_keyframes(item)))
+        else:  # a bare vertex index: a selection of its own, named by its place in the list
+            pins.append(PinSelection(key=key, indices=(int(item),)))
+    return Cloth(width=0.0, height=0.0, num_width_points=0, num_height_points=0, orientation=0,
+                 mesh=source, pin_selections=tuple(pins), **common)
 
 
 def _mass_map(value, base_dir: Path):

@@ -49,8 +49,43 @@ class FemMaterial:
 
 
 @dataclass(frozen=True)
+class Keyframe:
+    """A collider pose at `time`: offsets from the pose the scene file gives."""
+
+    time: float
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
+
+
+@dataclass(frozen=True)
+class ClothMeshSource:
+    """`cloth.mesh` and its placement: a file vertex v goes to R (scale * v) + translation."""
+
+    path: Path  # absolute
+    translation: Vec3 = (0.0, 0.0, 0.0)
+    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
+    scale: Vec3 = (1.0, 1.0, 1.0)
+    pieces_allowed: bool = False  # `cloth.pieces` "allow": several connected pieces
+
+
+@dataclass(frozen=True)
+class PinSelection:
+    """One selection of `cloth.pinned` for a mesh cloth; `key` is where the file wrote it
+    (e.g. 'cloth.pinned[2]'), for messages."""
+
+    key: str
+    indices: tuple[int, ...] = ()  # file vertex indices, 0-based
+    box: tuple[Vec3, Vec3] | None = None  # (lo, hi), world coordinates, bounds included
+    group: str | None = None  # an OBJ g/o group (or a PLY vertex attribute)
+    keyframes: tuple[Keyframe, ...] = ()
+
+
+@dataclass(frozen=True)
 class Cloth:
-    """The `cloth` block (docs/scene-format.md): a grid of point masses joined by springs."""
+    """The `cloth` block (docs/scene-format.md): a grid of point masses joined by springs,
+    or (`mesh` set) the points and triangles of a mesh file. A mesh cloth has width =
+    height = 0.0, num_width_points = num_height_points = 0, orientation = 0 and
+    pinned = (); its pins are `pin_selections`."""
 
     width: float
     height: float
@@ -70,15 +105,8 @@ class Cloth:
     mass_map: tuple[tuple[float, ...], ...] | Path | None = None
     mass_map_range: tuple[float, float] = (1.0, 2.0)  # image: black, white multipliers
     fem: FemMaterial = FemMaterial()  # used when simulation.model is "fem"
-
-
-@dataclass(frozen=True)
-class Keyframe:
-    """A collider pose at `time`: offsets from the pose the scene file gives."""
-
-    time: float
-    translation: Vec3 = (0.0, 0.0, 0.0)
-    rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
+    mesh: ClothMeshSource | None = None  # None: the grid
+    pin_selections: tuple[PinSelection, ...] = ()  # a mesh cloth's pins, in file order
 
 
 @dataclass(frozen=True)
@@ -233,7 +261,10 @@ class Scene:
 
     @property
     def self_collision(self) -> bool:
-        """The resolved self-collision switch: "auto" means on for vertical cloth only."""
+        """The resolved self-collision switch: "auto" means on for a vertical grid cloth and
+        for a mesh cloth, off for a horizontal grid cloth."""
         sc = self.simulation.self_collision
-        return self.cloth.orientation == 1 if sc == "auto" else bool(sc)
+        if sc != "auto":
+            return bool(sc)
+        return self.cloth.orientation == 1 or self.cloth.mesh is not None
 

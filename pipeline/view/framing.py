@@ -97,7 +97,7 @@ def framed_points(scene: Scene, positions: np.ndarray, time: float = 0.0) -> np.
     """The cloth points (N, 3) of one frame and the nearest collider surface points of those
     within NEAR_FRACTION of the cloth's size of a collider (colliders posed at `time`)."""
     pos = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    near = NEAR_FRACTION * max(scene.cloth.width, scene.cloth.height)
+    near = NEAR_FRACTION * cloth_size(scene, pos)
     parts = [pos]
     for c in scene.colliders:
         rot, shift = collider_pose(c, time)
@@ -168,5 +168,13 @@ def default_camera(scene: Scene, initial_positions, width: int, height: int,
             raise ValueError(f"the shot was framed for {shot.width}x{shot.height}, "
                              f"not {width}x{height}")
         return shot.camera()
-    return Camera.default_for_cloth(initial_positions, scene.cloth.width, scene.cloth.height,
-                                    width=width, height=height)
+    size = cloth_size(scene, initial_positions)
+    return Camera.default_for_cloth(initial_positions, size, size, width=width, height=height)
+
+
+def cloth_size(scene: Scene, positions) -> float:
+    """max(width, height) of the grid cloth; for a mesh cloth, the largest side of the
+    bounding box of `positions` (N, 3) (the initial ones, for the course camera)."""
+    if scene.cloth.mesh is None:
+        return max(scene.cloth.width, scene.cloth.height)
+    return float(np.ptp(np.asarray(positions, dtype=np.float64).reshape(-1, 3), axis=0).max())

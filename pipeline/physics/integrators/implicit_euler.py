@@ -23,7 +23,7 @@ from numba.core import types
 
 from clothjit import KernelPointer, njit
 
-from ..forces import jacobian_kernels, spring_force_buffer, total_force
+from ..forces import jacobian_kernels, total_force
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -39,7 +39,7 @@ class State(VelocityState):
         n = self.x.shape[1]
         self.unit = np.zeros((6, 3, n))
         self.alpha = np.zeros((6, n))
-        self.buffer = spring_force_buffer(n, system.nw)
+        self.buffer = np.zeros_like(system.spring_force)
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
         self.iterations = np.zeros(1, dtype=np.int64)  # CG iterations done, summed

@@ -43,7 +43,7 @@ class State(VelocityState):
     def __init__(self, system: System) -> None:
         super().__init__(system)
         fem = system.fem
-        self.multiplier = (np.zeros((6, system.nw * system.nh)) if system.classic
+        self.multiplier = (np.zeros((6, system.x0.shape[1])) if system.classic
                            else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS, fem.nw * fem.nh)))
         self.constraints = KernelPointer(
             solve_springs if system.classic else solve_fem,

@@ -1,0 +1,205 @@
+"""Forces and Provot's limit of a mesh cloth (pipeline.physics.mesh_model): the kernels
+System.kernels points to when the cloth is a mesh, with the signatures of the grid's
+(forces.internal_forces, constraints.limit_stretch).
+
+Each spring or element computes its forces into its own rows (a parallel loop over chunks
+of them); each point then sums its rows in incidence order (a parallel loop over chunks of
+points): no two threads write one place, and every sum has one order whatever the threads.
+The FEM's element formulas are pipeline.physics.fem's, so a mesh of the grid's triangles
+has the grid's energy.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from clothjit import njit, prange
+
+from .fem import _comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_stress
+from .forces import CHUNKS, _chunk
+
+
+@njit(cache=True, nogil=True, forceinline=True, no_cpython_wrapper=True)
+def _at(x, p):
+    return (x[0, p], x[1, p], x[2, p])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _hinge_at(x, hinges, h):
+    """fem._hinge of hinge h at x (3, N)."""
+    return _hinge(_at(x, hinges[h, 0]), _at(x, hinges[h, 1]), _at(x, hinges[h, 2]),
+                  _at(x, hinges[h, 3]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
+    """f[:] = mass * gravity + the springs' forces at x (3, N); buffer (3, S) scratch."""
+    a, b, rest, stiffness = springs.a, springs.b, springs.rest, springs.stiffness
+    start, slot, sign = springs.start, springs.slot, springs.sign
+    count, n = a.shape[0], x.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, count)
+        for s in range(lo, hi):
+            p, q = a[s], b[s]
+            dx = x[0, q] - x[0, p]
+            dy = x[1, q] - x[1, p]
+            dz = x[2, q] - x[2, p]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            k = stiffness[s] * (length - rest[s])
+            ok = length > 0.0  # zero length: direction undefined, no force
+            buffer[0, s] = (dx / length) * k if ok else 0.0
+            buffer[1, s] = (dy / length) * k if ok else 0.0
+            buffer[2, s] = (dz / length) * k if ok else 0.0
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            m = mass[p]
+            fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
+            for j in range(start[p], start[p + 1]):
+                s, w = slot[j], sign[j]
+                fx += w * buffer[0, s]
+                fy += w * buffer[1, s]
+                fz += w * buffer[2, s]
+            f[0, p], f[1, p], f[2, p] = fx, fy, fz
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
+def mesh_internal_forces(x, fem, springs, mass, gravity, spring_force, passes, f):
+    """forces.internal_forces for a classic mesh cloth (`fem` and `passes` unused;
+    spring_force (1, 3, S))."""
+    mesh_spring_forces(x, springs, mass, gravity, spring_force[0], f)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def mesh_fem_forces(x, fem, mass, gravity, f):
+    """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem)."""
+    tris, area, inv = fem.triangles, fem.tri_area, fem.tri_inv
+    hinges, factor, rest_angle = fem.hinges, fem.hinge_factor, fem.rest_angle
+    out, start, slot = fem.corner_force, fem.start, fem.slot
+    n_tri, n_hinge, n = tris.shape[0], hinges.shape[0], x.shape[1]
+    ks, kh, kb = fem.k_stretch, fem.k_shear, fem.k_bend
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n_tri)
+        for t in range(lo, hi):
+            i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
+            i00, i01, i10, i11 = inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3]
+            wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), i00, i01, i10, i11)
+            pu, pv = _membrane_stress(wu, wv, area[t] * ks, area[t] * kh)
+            g1 = _comb(pu, i00, pv, i01)  # dE/dx1
+            g2 = _comb(pu, i10, pv, i11)  # dE/dx2
+            for ax in range(3):
+                out[3 * t, ax] = g1[ax] + g2[ax]  # -(dE/dx0) = dE/dx1 + dE/dx2
+                out[3 * t + 1, ax] = -g1[ax]
+                out[3 * t + 2, ax] = -g2[ax]
+    base = 3 * n_tri
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n_hinge)
+        for h in range(lo, hi):
+            theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge_at(x, hinges, h)
+            scale = -2.0 * kb * factor[h] * (theta - rest_angle[h]) if ok else 0.0
+            g = _hinge_gradient(length, (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1),
+                                (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2), t1, t2)
+            for k in range(4):
+                for ax in range(3):
+                    out[base + 4 * h + k, ax] = scale * g[k][ax]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            m = mass[p]
+            fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
+            for j in range(start[p], start[p + 1]):
+                r = slot[j]
+                fx += out[r, 0]
+                fy += out[r, 1]
+                fz += out[r, 2]
+            f[0, p], f[1, p], f[2, p] = fx, fy, fz
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
+def mesh_fem_internal_forces(x, fem, springs, mass, gravity, spring_force, passes, f):
+    """forces.internal_forces for a FEM mesh cloth (`springs`, `spring_force` and `passes`
+    unused)."""
+    mesh_fem_forces(x, fem, mass, gravity, f)
+
+
+@njit(cache=True, nogil=True)
+def hinge_angles(x, hinges, out):
+    """out[h] = the dihedral angle of hinge h at x (3, N), as mesh_fem_forces measures it."""
+    for h in range(hinges.shape[0]):
+        out[h] = _hinge_at(x, hinges, h)[0]
+
+
+def with_rest_angles(fem, x0: np.ndarray):
+    """`fem` (MeshFem) with its rest angles measured at x0 (3, N)."""
+    angles = np.zeros(fem.hinges.shape[0])
+    hinge_angles(x0, fem.hinges, angles)
+    return fem._replace(rest_angle=angles)
+
+
+@njit(cache=True, nogil=True)
+def mesh_fem_energy(x, fem):
+    """Elastic energy (J) of the FEM mesh cloth at x (3, N)."""
+    tris, area, inv = fem.triangles, fem.tri_area, fem.tri_inv
+    energy = 0.0
+    for t in range(tris.shape[0]):
+        i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
+        wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), inv[t, 0], inv[t, 1],
+                              inv[t, 2], inv[t, 3])
+        lu, lv = np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))
+        shear = _dot(wu, wv)
+        energy += 0.5 * area[t] * (fem.k_stretch * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2)
+                                   + fem.k_shear * shear * shear)
+    for h in range(fem.hinges.shape[0]):
+        theta = _hinge_at(x, fem.hinges, h)[0]
+        energy += fem.k_bend * fem.hinge_factor[h] * (theta - fem.rest_angle[h]) ** 2
+    return energy
+
+
+@njit(cache=True, nogil=True)
+def mesh_spring_energy(x, springs):
+    """Potential energy sum of k (|pa - pb| - rest)^2 / 2 over the springs (J)."""
+    energy = 0.0
+    for s in range(springs.a.shape[0]):
+        p, q = springs.a[s], springs.b[s]
+        d = np.sqrt((x[0, q] - x[0, p]) ** 2 + (x[1, q] - x[1, p]) ** 2
+                    + (x[2, q] - x[2, p]) ** 2)
+        energy += 0.5 * springs.stiffness[s] * (d - springs.rest[s]) ** 2
+    return energy
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
+def mesh_limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
+    """Provot's limit on the structural springs in list order (constraints.limit_stretch's
+    rule; `limit` (1, S) is 1.1 rest; `exist_bits`, `limit_sq_lo` and `scratch` unused)."""
+    a, b, lim_row = springs.a, springs.b, limit[0]
+    for s in range(springs.structural):
+        p, q = a[s], b[s]
+        pa = pinned[p] != 0
+        pb = pinned[q] != 0
+        if pa and pb:
+            continue
+        dx = x[0, q] - x[0, p]
+        dy = x[1, q] - x[1, p]
+        dz = x[2, q] - x[2, p]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        lim = lim_row[s]
+        if not length > lim:
+            continue
+        k = length - lim
+        cx = (dx / length) * k
+        cy = (dy / length) * k
+        cz = (dz / length) * k
+        if not pa and not pb:
+            x[0, p] += 0.5 * cx
+            x[1, p] += 0.5 * cy
+            x[2, p] += 0.5 * cz
+            x[0, q] -= 0.5 * cx
+            x[1, q] -= 0.5 * cy
+            x[2, q] -= 0.5 * cz
+        elif pa:
+            x[0, q] -= cx
+            x[1, q] -= cy
+            x[2, q] -= cz
+        else:
+            x[0, p] += cx
+            x[1, p] += cy
+            x[2, p] += cz

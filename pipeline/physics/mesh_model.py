@@ -1,0 +1,191 @@
+"""A cloth given as a triangle mesh (`cloth.mesh`): its springs, finite elements and the
+incidence that gathers their forces on the points, as flat arrays for
+pipeline.physics.mesh_forces. Data only; the file is read by pipeline.physics.cloth_mesh.
+
+Classic model (SPEC section 2): structural springs on the mesh's edges, bending springs
+(k = 0.2 ks) between the two vertices opposite each interior edge, no shearing springs (a
+triangle mesh has no cell diagonals). Each spring is created by its later point, as the
+grid's springs are; the list holds the structural springs by (later point, earlier point),
+then the bending springs in the same order. Provot's limit walks the structural ones.
+
+FEM: the grid's energies (pipeline.physics.fem) per triangle of the mesh, each triangle's
+rest metric in its own plane with the u axis along the file's uv direction dP/du (the warp)
+and v orthogonal to it in that plane (the weft), and discrete-shells bending about each
+interior edge's rest dihedral angle, so a curved garment rests in its own shape.
+
+Every element writes its vertices' forces to its own rows of a buffer; each point then sums
+its rows in a fixed order (`start`, `slot`: a compressed incidence list), so results do not
+depend on the number of threads.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+BENDING_FACTOR = 0.2  # k = 0.2 * ks for bending springs, as the grid's
+
+
+class MeshSprings(NamedTuple):
+    """The classic springs of a mesh cloth (System.springs for a mesh)."""
+
+    a: np.ndarray  # (S,) int64: the spring's later point, which creates it
+    b: np.ndarray  # (S,) int64: its earlier point
+    rest: np.ndarray  # (S,) float64 rest length
+    stiffness: np.ndarray  # (S,) float64 k, 0 where its kind is disabled
+    structural: int  # springs [0, structural) are structural, the rest bending
+    start: np.ndarray  # (N + 1,) int64: point p's springs are slot[start[p]:start[p + 1]]
+    slot: np.ndarray  # (2 S,) int64 spring indices, ascending per point
+    sign: np.ndarray  # (2 S,) float64: +1 where the point is the spring's a, -1 where its b
+
+
+class MeshFem(NamedTuple):
+    """The finite-element model of a mesh cloth (System.fem for a mesh)."""
+
+    k_stretch: float  # N/m
+    k_shear: float  # N/m
+    k_bend: float  # N m
+    triangles: np.ndarray  # (T, 3) int64
+    tri_area: np.ndarray  # (T,) rest area
+    tri_inv: np.ndarray  # (T, 4) R^-1 entries (00, 01, 10, 11), R the rest edges in (u, v)
+    hinges: np.ndarray  # (H, 4) int64 (a, b, c, d): edge a-b, triangles (a, b, c), (b, a, d)
+    hinge_factor: np.ndarray  # (H,) |e|^2 / (2 (A1 + A2)) at rest
+    rest_angle: np.ndarray  # (H,) dihedral angle at rest (filled by mesh_forces)
+    corner_force: np.ndarray  # (3 T + 4 H, 3) scratch: each element corner's force
+    start: np.ndarray  # (N + 1,) int64: point p's corners are slot[start[p]:start[p + 1]]
+    slot: np.ndarray  # (3 T + 4 H,) int64 rows of corner_force, ascending per point
+
+
+@dataclass(frozen=True)
+class MeshTopology:
+    """What the model keeps of a mesh cloth beyond its springs and elements: its faces, uvs
+    (per triangle corner, seams kept) for drawing, edges, hinges and scale."""
+
+    triangles: np.ndarray  # (T, 3) int64
+    corner_uv: np.ndarray  # (T, 3, 2) float64
+    has_uv: bool  # False: corner_uv is a planar projection
+    edges: np.ndarray  # (E, 2) int64 (earlier, later point), sorted
+    hinges: np.ndarray  # (H, 4) int64, see MeshFem
+    mean_edge: float  # mean rest edge length, m
+    point_uv: np.ndarray  # (N, 2) a uv of each point (its first corner's), for mass maps
+
+
+def incidence(owner: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """(start, slot): the rows of `owner` (the point each row belongs to) grouped by point,
+    ascending within a point."""
+    slot = np.argsort(owner, kind="stable").astype(np.int64)
+    start = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(owner, minlength=n), out=start[1:])
+    return start, slot
+
+
+def topology(points: np.ndarray, triangles: np.ndarray, corner_uv: np.ndarray,
+             has_uv: bool) -> MeshTopology:
+    """Edges and hinges of a consistently wound manifold mesh; points (N, 3)."""
+    tris = np.asarray(triangles, dtype=np.int64)
+    tail = tris.reshape(-1)
+    head = tris[:, [1, 2, 0]].reshape(-1)
+    opposite = tris[:, [2, 0, 1]].reshape(-1)
+    lo, hi = np.minimum(tail, head), np.maximum(tail, head)
+    edges, inverse, counts = np.unique(np.stack([lo, hi], axis=1), axis=0, return_inverse=True,
+                                       return_counts=True)
+    inverse = inverse.reshape(-1)
+    order = np.argsort(inverse, kind="stable")  # the directed edges of each edge, in face order
+    first = np.zeros(len(edges) + 1, dtype=np.int64)
+    np.cumsum(counts, out=first[1:])
+    interior = np.nonzero(counts == 2)[0]
+    one, two = order[first[interior]], order[first[interior] + 1]
+    hinges = np.stack([tail[one], head[one], opposite[one], opposite[two]], axis=1)
+    length = np.linalg.norm(points[edges[:, 1]] - points[edges[:, 0]], axis=1)
+    point_uv = np.zeros((len(points), 2))
+    point_uv[tail[::-1]] = corner_uv.reshape(-1, 2)[::-1]  # the first corner's uv wins
+    return MeshTopology(triangles=tris, corner_uv=np.asarray(corner_uv, dtype=np.float64),
+                        has_uv=has_uv, edges=edges.astype(np.int64), hinges=hinges,
+                        mean_edge=float(length.mean()), point_uv=point_uv)
+
+
+def mesh_springs(points: np.ndarray, topo: MeshTopology, ks: float,
+                 structural: bool, bending: bool) -> MeshSprings:
+    """The classic springs of the mesh, rest lengths from `points` (N, 3)."""
+    n = len(points)
+    pairs = [topo.edges[:, ::-1]]  # (later, earlier)
+    bend = np.sort(topo.hinges[:, 2:], axis=1)[:, ::-1]
+    bend = bend[bend[:, 0] != bend[:, 1]]
+    bend = np.unique(bend[np.lexsort((bend[:, 1], bend[:, 0]))], axis=0) if len(bend) else bend
+    structural_pairs = pairs[0][np.lexsort((pairs[0][:, 1], pairs[0][:, 0]))]
+    both = np.concatenate([structural_pairs, bend.reshape(-1, 2)]).astype(np.int64)
+    a, b = np.ascontiguousarray(both[:, 0]), np.ascontiguousarray(both[:, 1])
+    rest = np.linalg.norm(points[b] - points[a], axis=1)
+    k = np.concatenate([np.full(len(structural_pairs), ks if structural else 0.0),
+                        np.full(len(bend), BENDING_FACTOR * ks if bending else 0.0)])
+    owner = np.concatenate([a, b])
+    start, slot2 = incidence(owner, n)
+    count = len(a)
+    slot = np.where(slot2 < count, slot2, slot2 - count)
+    order = np.lexsort((slot, np.repeat(np.arange(n), np.diff(start))))
+    slot, sign_rows = slot[order], slot2[order]
+    sign = np.where(sign_rows < count, 1.0, -1.0)
+    return MeshSprings(a=a, b=b, rest=rest, stiffness=k, structural=len(structural_pairs),
+                       start=start, slot=slot.astype(np.int64), sign=sign)
+
+
+def rest_frames(points: np.ndarray, triangles: np.ndarray,
+                corner_uv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(area (T,), R^-1 (T, 4)): each triangle's rest area and the inverse of its rest edge
+    matrix R = [e1 e2] in its (u, v) frame: u along dP/du, v orthogonal to it in the plane
+    (towards dP/dv). Where the uvs give no direction, u runs along the first edge."""
+    p0, p1, p2 = (points[triangles[:, k]] for k in range(3))
+    e1, e2 = p1 - p0, p2 - p0
+    normal = np.cross(e1, e2)
+    area = 0.5 * np.linalg.norm(normal, axis=1)
+    n_hat = normal / np.maximum(2.0 * area, 1e-300)[:, None]
+    duv1 = corner_uv[:, 1] - corner_uv[:, 0]
+    duv2 = corner_uv[:, 2] - corner_uv[:, 0]
+    det = duv1[:, 0] * duv2[:, 1] - duv2[:, 0] * duv1[:, 1]
+    ok = np.abs(det) > 1e-14
+    safe = np.where(ok, det, 1.0)
+    dpdu = (e1 * duv2[:, 1:2] - e2 * duv1[:, 1:2]) / safe[:, None]
+    dpdv = (e2 * duv1[:, 0:1] - e1 * duv2[:, 0:1]) / safe[:, None]
+    dpdu = dpdu - np.sum(dpdu * n_hat, axis=1)[:, None] * n_hat
+    good = ok & (np.linalg.norm(dpdu, axis=1) > 0.0)
+    t1 = np.where(good[:, None], dpdu, e1)
+    t1 = t1 / np.linalg.norm(t1, axis=1)[:, None]
+    t2 = np.cross(n_hat, t1)
+    flip = good & (np.sum(t2 * dpdv, axis=1) < 0.0)  # v towards dP/dv (mirrored uvs)
+    t2[flip] *= -1.0
+    r = np.empty((len(triangles), 2, 2))
+    r[:, 0, 0], r[:, 1, 0] = np.sum(e1 * t1, axis=1), np.sum(e1 * t2, axis=1)
+    r[:, 0, 1], r[:, 1, 1] = np.sum(e2 * t1, axis=1), np.sum(e2 * t2, axis=1)
+    return area, np.linalg.inv(r).reshape(-1, 4)
+
+
+def mesh_fem(points: np.ndarray, topo: MeshTopology, k_stretch: float, k_shear: float,
+             k_bend: float) -> MeshFem:
+    """The FEM of the mesh at rest in `points` (N, 3); rest angles are filled in by
+    pipeline.physics.mesh_forces.with_rest_angles (the kernels' own dihedral angle)."""
+    n = len(points)
+    tris, hinges = topo.triangles, topo.hinges
+    area, inv = rest_frames(points, tris, topo.corner_uv)
+    a, b, c, d = (points[hinges[:, k]] for k in range(4))
+    e = b - a
+    area1 = 0.5 * np.linalg.norm(np.cross(e, c - a), axis=1)
+    area2 = 0.5 * np.linalg.norm(np.cross(d - a, e), axis=1)
+    factor = np.sum(e * e, axis=1) / (2.0 * (area1 + area2))
+    owner = np.concatenate([tris.reshape(-1), hinges.reshape(-1)])
+    start, slot = incidence(owner, n)
+    return MeshFem(k_stretch=float(k_stretch), k_shear=float(k_shear), k_bend=float(k_bend),
+                   triangles=tris, tri_area=area, tri_inv=np.ascontiguousarray(inv),
+                   hinges=np.ascontiguousarray(hinges), hinge_factor=factor,
+                   rest_angle=np.zeros(len(hinges)), corner_force=np.zeros((len(owner), 3)),
+                   start=start, slot=slot)
+
+
+def lumped_masses(points: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:
+    """(N,) density times a third of the rest area of every incident triangle."""
+    p0, p1, p2 = (points[triangles[:, k]] for k in range(3))
+    third = np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1) / 6.0
+    area = np.zeros(len(points))
+    for k in range(3):
+        np.add.at(area, triangles[:, k], third)
+    return density * area
