@@ -2,7 +2,7 @@
 newer features (wind, box and mesh colliders, keyframes, mass maps), as small looping GIFs.
 
     python renders/make_gallery.py                        # all of it (a few minutes on 2 cores)
-    python renders/make_gallery.py showcase               # only the four showcase scenes
+    python renders/make_gallery.py showcase               # only the showcase scenes
     python renders/make_gallery.py flag bowl              # only these scenes
     python renders/make_gallery.py sphere --shaders phong normal
 
@@ -49,6 +49,18 @@ SHOWCASE = {
     "moving_sphere": (4.0, ("phong", "toon"),
                       "a cloth draped over a sphere that then slides sideways (`keyframes`); "
                       "friction 1 carries the cloth along"),
+    "round_tablecloth": (3.0, ("phong", "texture"),
+                         "a round tablecloth from a mesh file (`cloth.mesh`, "
+                         "scenes/meshes/tablecloth.obj) dropped on a round table (a `mesh` "
+                         "collider)"),
+    "swallowtail": (4.0, ("phong", "texture"),
+                    "a swallowtail flag from a mesh file, pinned by its `hoist` group, in wind"),
+    "skirt": (6.0, ("phong", "normal"),
+              "a skirt (an open cone from a mesh file) pinned at its waist by keyframed pins "
+              "that turn it, over a turning sphere"),
+    "tshirt": (3.0, ("phong", "texture"),
+               "a T-shirt (body and sleeves from one mesh file) settling on a torso-shaped "
+               "`mesh` collider"),
 }
 SHOWCASE_SIZE = 224
 GROUPS = {"course": COURSE_SCENES, "showcase": tuple(SHOWCASE)}

@@ -252,7 +252,7 @@ def build_mesh_model(scene: Scene, x0: np.ndarray | None = None) -> ClothModel:
                                                        c.enable_bending),
         fem=fem, mesh=MeshCloth(source=mesh.path, topology=topo, springs=springs,
                                 file_index=mesh.file_index, pin_motion=motion,
-                                pin_speed=max_pin_speed(motion, moving)))
+                                pin_speed=max_pin_speed(motion, moving, rest_points)))
 
 
 def uv_mass_multipliers(cloth: Cloth, point_uv: np.ndarray) -> np.ndarray:

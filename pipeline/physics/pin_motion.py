@@ -49,12 +49,15 @@ def pin_motion(points: np.ndarray, moving: list[tuple[np.ndarray, tuple]]) -> Pi
                      np.zeros((len(moving), POSE_WIDTH)))
 
 
-def max_pin_speed(motion: PinMotion | None, moving: list[tuple[np.ndarray, tuple]]) -> float:
-    """A bound on the speed of every keyframed pin (for the divergence guard's slack)."""
+def max_pin_speed(motion: PinMotion | None, moving: list[tuple[np.ndarray, tuple]],
+                  points: np.ndarray) -> float:
+    """A speed the keyframed pins may give the cloth at rest at `points` (N, 3), for the
+    divergence guard's slack: the hand's motion carried out to twice the distance of the
+    farthest point from its pivot (the cloth stretches, and a spun garment flares out)."""
     if motion is None:
         return 0.0
-    reach = np.linalg.norm(motion.rest.T - motion.pivot[motion.selection], axis=1).max()
-    return max_surface_speed([SimpleNamespace(keyframes=k) for _, k in moving], float(reach))
+    reach = max(np.linalg.norm(points - c, axis=1).max() for c in motion.pivot)
+    return max_surface_speed([SimpleNamespace(keyframes=k) for _, k in moving], 2.0 * reach)
 
 
 @njit(cache=True, nogil=True)
