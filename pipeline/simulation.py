@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from clothjit import LOOK_EVERY, adjust_threads
-from pipeline.physics.errors import DivergenceError, StabilityWarning
+from pipeline.physics.errors import DivergenceError, SelfCollisionWarning, StabilityWarning
 from pipeline.physics.integrators import integrator_module
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
@@ -26,6 +26,20 @@ def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> Cl
     model = build_model(scene, initial_positions)
     resolve_start_inside(scene, model)
     return model
+
+
+def _warn_short_edges(scene: Scene, model: ClothModel) -> None:
+    """A mesh cloth with self-collision whose shortest edge is under 2 x thickness: the
+    course's repulsion pushes those neighbours apart, fighting the springs."""
+    s = model.mesh.springs
+    shortest = float(s.rest[:s.structural].min())
+    if shortest < 2.0 * scene.cloth.thickness:
+        count = int(np.count_nonzero(s.rest[:s.structural] < 2.0 * scene.cloth.thickness))
+        warnings.warn(
+            f"{model.mesh.source.name}: {count} edge{'s' * (count != 1)} shorter than "
+            f"2 x cloth.thickness ({2.0 * scene.cloth.thickness:g} m; the shortest "
+            f"{shortest:.3g} m): self-collision pushes their ends apart; use a smaller "
+            "cloth.thickness or a coarser mesh", SelfCollisionWarning, stacklevel=3)
 
 
 class Simulation:
@@ -61,6 +75,8 @@ class Simulation:
         self._on_file_grid = None
         self.model: ClothModel = cloth_model(self.scene, initial_positions)
         self.system: System = build_system(self.scene, self.model)
+        if self.model.mesh is not None and self.system.self_collision:
+            _warn_short_edges(self.scene, self.model)
         if prepare is not None:
             prepare(self.model, self.system)
         self.omega_max, self.dt_max = stability_limit(self.model)

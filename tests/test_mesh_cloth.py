@@ -2,6 +2,7 @@
 equal, at rest in its own shape, with pins, colliders, self-collision and the integrators."""
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -188,3 +189,74 @@ def test_keyframed_pins_follow_their_pose_about_their_centroid(tmp_path):
     sim.step(steps)
     assert np.allclose(sim.positions[[0, 9]], [[0.5, 1.5, 0.5], [0.5, 1.5, -0.5]], atol=1e-12)
     assert sim.positions[:, 1].max() > 1.2  # the cloth was lifted with them
+
+
+def test_a_hanging_strip_sags_as_the_grid_strip_of_the_same_material(tmp_path):
+    """FEM statics on another triangulation: a 1 m x 0.1 m strip held at both short ends,
+    its cells cut along the other diagonal, comes to rest within 2 % of the grid strip's
+    sag (both fine enough that halving the grid spacing changes the grid's sag by < 1 %)."""
+    def sag(scene):
+        sim = Simulation(scene)
+        sim.step(int(round(3.0 / sim.dt)))
+        x = sim.positions
+        return 1.0 - x[:, 1].min(), np.abs(x - sim.last_positions).max()
+
+    def grid_scene(nw, nh):
+        pins = [(j, i) for i in range(nh) for j in (0, nw - 1)]
+        scene = scene_dict(cloth_dict(nw, nh, width=1.0, height=0.1, orientation=0,
+                                      damping=2.0, pinned=pins))
+        scene["simulation"]["model"] = "fem"
+        return scene
+
+    nw, nh = 41, 5
+    coarse, _ = sag(grid_scene(21, 3))
+    grid, still = sag(grid_scene(nw, nh))
+    assert still < 1e-9 and abs(coarse - grid) < 0.01 * grid
+    points, tris, corner_uv = grid_mesh(nw, nh, 1.0, 0.1)
+    a, b, c, d = tris[: len(tris) // 2, 0], tris[: len(tris) // 2, 2], tris[: len(tris) // 2, 1], None
+    d = c + 1  # the cells' corners A, B, C, D: cut along A-D instead of B-C
+    other = np.concatenate([np.stack([a, c, d], 1), np.stack([a, d, b], 1)])
+    uv = np.stack([points[:, 0], points[:, 1] / 0.1], 1)
+    placed = np.stack([points[:, 0], np.ones(len(points)), points[:, 1]], 1)
+    obj = write_obj(tmp_path / "strip.obj", placed, other, uv[other])
+    ends = [int(p) for p in np.nonzero((points[:, 0] == 0.0) | (points[:, 0] == 1.0))[0]]
+    mesh = mesh_scene(obj, pinned=ends, model="fem")
+    mesh["cloth"]["damping"] = 2.0
+    mesh["simulation"]["self_collision"] = False
+    got, still = sag(mesh)
+    assert still < 1e-9 and got > 0.01
+    assert abs(got - grid) < 0.02 * grid, (got, grid)
+
+
+def test_a_mass_map_image_is_read_at_each_points_uv(tmp_path):
+    """On a mesh of the grid's points with the grid's uvs, the image's multipliers are the
+    grid cloth's (pipeline.physics.model.mass_multipliers resamples the image to the grid
+    on its own)."""
+    from PIL import Image
+
+    image = tmp_path / "map.png"
+    Image.fromarray(np.array([[0, 80, 255, 30, 200], [255, 0, 120, 60, 10],
+                              [40, 90, 250, 0, 255]], np.uint8)).save(image)
+    grid = scene_dict(cloth_dict(9, 7, orientation=0))
+    grid["cloth"].update(mass_map=str(image), mass_map_range=[1.0, 3.0])
+    mesh = mesh_scene(horizontal_grid_obj(tmp_path, 9, 7))
+    mesh["cloth"].update(mass_map=str(image), mass_map_range=[1.0, 3.0])
+    m_grid, m_mesh = Simulation(grid).model, Simulation(mesh).model
+    uniform = Simulation(mesh_scene(horizontal_grid_obj(tmp_path, 9, 7))).model.point_mass
+    expected = m_grid.point_mass / m_grid.mass
+    assert np.allclose(m_mesh.point_mass / uniform, expected, rtol=1e-12)
+    assert expected.max() > 2.5 and expected.min() < 1.2
+
+
+def test_edges_under_twice_the_thickness_are_warned_of_with_self_collision(tmp_path):
+    from pipeline.physics.errors import SelfCollisionWarning
+
+    obj = horizontal_grid_obj(tmp_path, 11, 11)  # edges 0.1 and 0.14 m
+    scene = mesh_scene(obj, self_collision=True)
+    scene["cloth"]["thickness"] = 0.06
+    with pytest.warns(SelfCollisionWarning, match="220 edges shorter than 2 x cloth.thickness"):
+        Simulation(scene)
+    scene["cloth"]["thickness"] = 0.04
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        Simulation(scene)

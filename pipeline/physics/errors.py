@@ -8,3 +8,8 @@ class DivergenceError(RuntimeError):
 
 class StabilityWarning(UserWarning):
     """The time step exceeds the explicit stability limit of the spring lattice."""
+
+
+class SelfCollisionWarning(UserWarning):
+    """Self-collision will act on neighbouring points of the cloth (edges under 2 x
+    thickness)."""
