@@ -68,7 +68,8 @@ def test_a_curved_mesh_without_gravity_stays_in_its_own_shape(tmp_path, model):
     assert np.abs(sim.positions - start).max() < 1e-12
 
 
-@pytest.mark.parametrize("integrator", ["verlet", "euler", "symplectic-euler", "rk4"])
+@pytest.mark.parametrize("integrator", ["verlet", "euler", "symplectic-euler", "rk4",
+                                        "implicit-euler"])
 def test_pins_hold_and_the_cloth_falls_with_every_mesh_integrator(tmp_path, integrator):
     obj = horizontal_grid_obj(tmp_path, 8, 8)
     sim = Simulation(mesh_scene(obj, pinned=(0, 7), integrator=integrator))
@@ -111,12 +112,27 @@ def test_self_collision_boxes_of_a_mesh_are_three_mean_edges(tmp_path):
     assert np.isfinite(sim.positions).all()
 
 
-@pytest.mark.parametrize("integrator", ["implicit-euler", "xpbd"])
-def test_integrators_written_for_the_grid_are_refused_for_a_mesh(tmp_path, integrator):
-    obj = horizontal_grid_obj(tmp_path, 4, 4)
-    with pytest.raises(SceneError, match=f"simulation.integrator: '{integrator}' is not "
-                                         "available for a mesh cloth"):
-        Simulation(mesh_scene(obj, integrator=integrator))
+@pytest.mark.parametrize("model", ["classic", "fem"])
+def test_implicit_euler_on_a_grid_mesh_moves_as_on_the_grid(tmp_path, model):
+    """Backward Euler (CG to 1e-9) on the grid's triangles: the mesh FEM moves as the grid
+    FEM. The classic mesh has other springs than the grid (no shearing springs, bending
+    springs across edges), so it is checked for falling and staying finite only."""
+    nw = nh = 9
+    mesh = mesh_scene(horizontal_grid_obj(tmp_path, nw, nh), pinned=(0, 8), model=model,
+                      integrator="implicit-euler")
+    mesh["simulation"]["self_collision"] = False
+    sim = Simulation(mesh)
+    sim.step(int(round(0.3 / sim.dt)))
+    if model == "classic":
+        assert sim.positions[:, 1].min() < 0.8 and np.isfinite(sim.positions).all()
+        return
+    grid = scene_dict(cloth_dict(nw, nh, orientation=0, damping=0.2, pinned=((0, 0), (8, 0))))
+    grid["simulation"].update(model="fem", integrator="implicit-euler")
+    reference = Simulation(grid)
+    reference.step(sim.step_count)
+    moved = np.abs(reference.positions - reference.model.initial_positions).max()
+    assert moved > 0.1
+    assert np.abs(sim.positions - reference.positions).max() < 1e-6 * moved
 
 
 def test_wind_on_a_grid_mesh_is_the_grid_clothes_wind(tmp_path):

@@ -141,3 +141,59 @@ def test_lumped_masses_sum_to_area_times_density():
     # the inscribed polyhedral surface's area: the quarter cylinder's chords times the height
     chord = 2 * 0.3 * np.sin(0.5 * (0.5 * np.pi) / 11)
     assert m.sum() == pytest.approx(0.2 * 11 * chord * 0.4, rel=1e-12)
+
+
+def test_fem_jacobian_products_are_the_grid_fems(rng):
+    """K_f y and the diagonal of -K_f of the mesh FEM on the grid's triangles against the
+    grid FEM's own (pipeline.physics.fem), away from rest."""
+    from pipeline.physics.mesh_forces import mesh_fem_product
+
+    nw, nh, width, height = 7, 5, 0.9, 0.6
+    points, tris, corner_uv = grid_mesh(nw, nh, width, height)
+    _, params = fem_of(points, tris, corner_uv)
+    grid = fem.build_fem(nw, nh, width, height, 300.0, 30.0, 1e-3, 0.15)
+    x = np.ascontiguousarray(points.T + rng.normal(0.0, 0.03, points.T.shape))
+    y = np.ascontiguousarray(rng.normal(0.0, 1.0, x.shape))
+    expected, got = np.zeros_like(x), np.zeros_like(x)
+    fem.fem_filtered_jacobian_product(x, grid, y, expected)
+    mesh_fem_product(x, y, params, got, False)
+    assert np.abs(got - expected).max() <= 1e-11 * np.abs(expected).max()
+    fem.fem_jacobian_diagonal(x, grid, expected)
+    mesh_fem_product(x, x, params, got, True)
+    assert np.abs(got - expected).max() <= 1e-11 * np.abs(expected).max()
+
+
+def test_spring_jacobian_is_the_derivative_of_the_forces_where_stretched(rng):
+    """Every spring stretched (the filter drops nothing): K y against central differences
+    of mesh_spring_forces, and the diagonal of -K against K assembled densely here."""
+    from pipeline.physics.mesh_forces import (mesh_spring_diagonal_of, mesh_spring_jacobian,
+                                              mesh_spring_product)
+
+    points, tris, corner_uv = cylinder_patch(rows=5, cols=6)
+    topo = topology(points, tris, corner_uv, True)
+    springs = mesh_springs(points, topo, 700.0, True, True)
+    n, count = len(points), len(springs.a)
+    x = np.ascontiguousarray(1.3 * points.T + rng.normal(0.0, 0.002, points.T.shape))
+    unit, alpha = np.zeros((1, 3, count)), np.zeros((1, count))
+    mesh_spring_jacobian(x, springs, unit, alpha)
+    assert (alpha >= 0.0).all() and (alpha > 0.0).any()
+    y = np.ascontiguousarray(rng.normal(0.0, 1.0, x.shape))
+    ky = np.zeros_like(x)
+    mesh_spring_product(y, springs, unit, alpha, np.zeros((3, count)), ky)
+    h, plus, minus = 1e-6, np.zeros_like(x), np.zeros_like(x)
+    buffer, ones, g = np.zeros((3, count)), np.ones(n), np.zeros(3)
+    mesh_spring_forces(x + h * y, springs, ones, g, buffer, plus)
+    mesh_spring_forces(x - h * y, springs, ones, g, buffer, minus)
+    assert np.allclose(ky, (plus - minus) / (2 * h), rtol=1e-6, atol=1e-5)
+    k = np.zeros((3 * n, 3 * n))
+    for a, b, stiffness in zip(springs.a, springs.b, springs.stiffness):
+        d = x[:, b] - x[:, a]
+        length = np.linalg.norm(d)
+        u = d / length
+        rest = np.linalg.norm(points[b] - points[a])
+        block = stiffness * np.outer(u, u) + stiffness * (1 - rest / length) * (np.eye(3) - np.outer(u, u))
+        for p, q, s in ((a, a, 1), (b, b, 1), (a, b, -1), (b, a, -1)):
+            k[3 * p:3 * p + 3, 3 * q:3 * q + 3] += s * block
+    diagonal = np.zeros_like(x)
+    mesh_spring_diagonal_of(springs, unit, alpha, diagonal)
+    assert np.allclose(diagonal.T.ravel(), np.diag(k), rtol=1e-12)

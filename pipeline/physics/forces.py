@@ -28,6 +28,7 @@ from numba.extending import register_jitable
 from clothjit import KernelPointer, njit, prange
 
 from .fem import add_fem_forces, fem_energy, fem_filtered_jacobian_product, fem_jacobian_diagonal
+from .mesh_model import MeshSprings
 from .model import DIRECTION_DI, DIRECTION_DJ
 
 CHUNKS = 16  # work items per pass; numba spreads them over the threads
@@ -410,21 +411,34 @@ class JacobianKernels(NamedTuple):
 def jacobian_kernels(system, x, unit, alpha, buffer) -> JacobianKernels:
     """The System's model's JacobianKernels, typed for positions like x (3, N) and the
     springs' scratch (unit, alpha, buffer: see spring_jacobian)."""
+    from . import mesh_forces
+
     classic = system.classic
-    offsets, _, _, _, stiffness = system.springs
+    mesh = isinstance(system.springs, MeshSprings)
+    # a mesh cloth's own kernels need no passes: the grid's, absent, typed for no springs
+    offsets, stiffness = ((direction_offsets(0), np.zeros(6)) if mesh
+                          else (system.springs[0], system.springs[4]))
     field, index = types.float64[:, ::1], types.int64
     zero_mass, zero_gravity = np.zeros(x.shape[1]), np.zeros(3)
     passes = ProductPasses(
         KernelPointer(_jacobian_pass, (field, offsets, stiffness, unit, alpha, buffer, index,
-                                       index, index), present=classic),
-        system.kernels.springs.gather,  # the forces' own (absent with the FEM)
+                                       index, index), present=classic and not mesh),
+        system.kernels.springs.gather,  # the forces' own (absent with the FEM, a mesh)
         zero_mass, zero_gravity)
     fields = (system.fem, system.springs, unit, alpha)
+    if mesh:
+        prepare, product, diagonal = (
+            (mesh_forces.mesh_spring_prepare, mesh_forces.mesh_spring_apply,
+             mesh_forces.mesh_spring_diagonal) if classic else
+            (mesh_forces.mesh_fem_prepare, mesh_forces.mesh_fem_apply,
+             mesh_forces.mesh_fem_diagonal))
+    else:
+        prepare, product, diagonal = ((spring_prepare, spring_product, spring_diagonal)
+                                      if classic else (fem_prepare, fem_product, fem_diagonal))
     return JacobianKernels(
-        KernelPointer(spring_prepare if classic else fem_prepare, (x, *fields)),
-        KernelPointer(spring_product if classic else fem_product,
-                      (x, x, *fields, buffer, x, passes)),
-        KernelPointer(spring_diagonal if classic else fem_diagonal, (x, *fields, x)),
+        KernelPointer(prepare, (x, *fields)),
+        KernelPointer(product, (x, x, *fields, buffer, x, passes)),
+        KernelPointer(diagonal, (x, *fields, x)),
         passes)
 
 

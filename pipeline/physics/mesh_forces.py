@@ -14,7 +14,8 @@ import numpy as np
 
 from clothjit import njit, prange
 
-from .fem import _comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_stress
+from .fem import (_comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_diagonal,
+                  _membrane_hessian, _membrane_stress)
 from .forces import CHUNKS, _chunk
 
 
@@ -203,3 +204,165 @@ def mesh_limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scrat
             x[0, p] += cx
             x[1, p] += cy
             x[2, p] += cz
+
+
+# --- the force Jacobian K = df/dx for implicit Euler (forces.JacobianKernels) --------------
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def mesh_spring_jacobian(x, springs, unit, alpha):
+    """Per-spring data of K at x (forces.spring_jacobian's, over the spring list): unit[0, :,
+    s] the spring's direction, alpha[0, s] = k max(0, 1 - rest / l), -1 where it exerts no
+    force."""
+    a, b, rest, stiffness = springs.a, springs.b, springs.rest, springs.stiffness
+    count = a.shape[0]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, count)
+        for s in range(lo, hi):
+            p, q, k = a[s], b[s], stiffness[s]
+            dx = x[0, q] - x[0, p]
+            dy = x[1, q] - x[1, p]
+            dz = x[2, q] - x[2, p]
+            length = np.sqrt(dx * dx + dy * dy + dz * dz)
+            if k == 0.0 or not length > 0.0:
+                alpha[0, s] = -1.0
+                continue
+            unit[0, 0, s] = dx / length
+            unit[0, 1, s] = dy / length
+            unit[0, 2, s] = dz / length
+            alpha[0, s] = k * max(0.0, 1.0 - rest[s] / length)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def mesh_spring_product(y, springs, unit, alpha, buffer, out):
+    """out = K y at the point of mesh_spring_jacobian: (K y)_a = K_s (y_b - y_a) and minus
+    that at b, K_s = k u u^T + alpha (I - u u^T); buffer (3, S)."""
+    a, b, stiffness = springs.a, springs.b, springs.stiffness
+    start, slot, sign = springs.start, springs.slot, springs.sign
+    count, n = a.shape[0], y.shape[1]
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, count)
+        for s in range(lo, hi):
+            w, k, p, q = alpha[0, s], stiffness[s], a[s], b[s]
+            ux, uy, uz = unit[0, 0, s], unit[0, 1, s], unit[0, 2, s]
+            rx = y[0, q] - y[0, p]
+            ry = y[1, q] - y[1, p]
+            rz = y[2, q] - y[2, p]
+            along = ux * rx + uy * ry + uz * rz
+            buffer[0, s] = 0.0 if w < 0.0 else (k - w) * along * ux + w * rx
+            buffer[1, s] = 0.0 if w < 0.0 else (k - w) * along * uy + w * ry
+            buffer[2, s] = 0.0 if w < 0.0 else (k - w) * along * uz + w * rz
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            fx = fy = fz = 0.0
+            for j in range(start[p], start[p + 1]):
+                s, g = slot[j], sign[j]
+                fx += g * buffer[0, s]
+                fy += g * buffer[1, s]
+                fz += g * buffer[2, s]
+            out[0, p], out[1, p], out[2, p] = fx, fy, fz
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def mesh_spring_diagonal_of(springs, unit, alpha, out):
+    """out[a, p] = the diagonal of -K at the point of mesh_spring_jacobian: the sum of
+    k u_a^2 + alpha (1 - u_a^2) over the springs at p."""
+    start, slot, stiffness = springs.start, springs.slot, springs.stiffness
+    for p in range(out.shape[1]):
+        for ax in range(3):
+            total = 0.0
+            for j in range(start[p], start[p + 1]):
+                s = slot[j]
+                w, u = alpha[0, s], unit[0, ax, s]
+                if w >= 0.0:
+                    total += stiffness[s] * u * u + w * (1.0 - u * u)
+            out[ax, p] = total
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def mesh_fem_product(x, y, fem, out, diagonal):
+    """out = K_f y, K_f the FEM's filtered force Jacobian at x (the positive semi-definite
+    part of the Hessian, negated: membrane as fem._membrane_hessian with `filtered`, bending
+    2 k_bend f g g^T, g = d theta / dx), or with `diagonal` out = the diagonal of -K_f."""
+    tris, area, inv = fem.triangles, fem.tri_area, fem.tri_inv
+    hinges, factor = fem.hinges, fem.hinge_factor
+    rows, start, slot = fem.corner_force, fem.start, fem.slot
+    n_tri, n_hinge, n = tris.shape[0], hinges.shape[0], x.shape[1]
+    ks, kh, kb = fem.k_stretch, fem.k_shear, fem.k_bend
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n_tri)
+        for t in range(lo, hi):
+            i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
+            i00, i01, i10, i11 = inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3]
+            wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), i00, i01, i10, i11)
+            ka, kc = area[t] * ks, area[t] * kh
+            if diagonal:
+                du, dv = _membrane_diagonal(wu, wv, ka, kc), _membrane_diagonal(wv, wu, ka, kc)
+                for k, cu, cv in ((0, -(i00 + i10), -(i01 + i11)), (1, i00, i01), (2, i10, i11)):
+                    for ax in range(3):
+                        rows[3 * t + k, ax] = (cu * cu * du[ax] + cv * cv * dv[ax]
+                                               + 2.0 * cu * cv * kc * wu[ax] * wv[ax])
+                continue
+            dwu, dwv = _deformation(_at(y, i0), _at(y, i1), _at(y, i2), i00, i01, i10, i11)
+            pu, pv = _membrane_hessian(wu, wv, dwu, dwv, ka, kc, True)
+            g1, g2 = _comb(pu, i00, pv, i01), _comb(pu, i10, pv, i11)
+            for ax in range(3):
+                rows[3 * t, ax] = g1[ax] + g2[ax]
+                rows[3 * t + 1, ax] = -g1[ax]
+                rows[3 * t + 2, ax] = -g2[ax]
+    base = 3 * n_tri
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n_hinge)
+        for h in range(lo, hi):
+            theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge_at(x, hinges, h)
+            g = _hinge_gradient(length, (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1),
+                                (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2), t1, t2)
+            stiff = 2.0 * kb * factor[h] if ok else 0.0
+            along = 0.0
+            for k in range(4):
+                along += _dot(g[k], _at(y, hinges[h, k]))
+            for k in range(4):
+                for ax in range(3):
+                    rows[base + 4 * h + k, ax] = (stiff * g[k][ax] * g[k][ax] if diagonal
+                                                  else -stiff * along * g[k][ax])
+    for c in prange(CHUNKS):
+        lo, hi = _chunk(c, n)
+        for p in range(lo, hi):
+            fx = fy = fz = 0.0
+            for j in range(start[p], start[p + 1]):
+                r = slot[j]
+                fx += rows[r, 0]
+                fy += rows[r, 1]
+                fz += rows[r, 2]
+            out[0, p], out[1, p], out[2, p] = fx, fy, fz
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_spring_prepare(x, fem, springs, unit, alpha):
+    mesh_spring_jacobian(x, springs, unit, alpha)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_spring_apply(x, y, fem, springs, unit, alpha, buffer, out, passes):
+    mesh_spring_product(y, springs, unit, alpha, buffer[0], out)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_spring_diagonal(x, fem, springs, unit, alpha, out):
+    mesh_spring_diagonal_of(springs, unit, alpha, out)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_fem_prepare(x, fem, springs, unit, alpha):
+    """Nothing: the FEM's products need nothing beyond x."""
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_fem_apply(x, y, fem, springs, unit, alpha, buffer, out, passes):
+    mesh_fem_product(x, y, fem, out, False)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
+def mesh_fem_diagonal(x, fem, springs, unit, alpha, out):
+    mesh_fem_product(x, x, fem, out, True)

@@ -202,7 +202,7 @@ def step_kernels(s: System) -> StepKernels:
 
 
 #: integrators that step a mesh cloth (the others' kernels are written for the grid)
-MESH_INTEGRATORS = ("verlet", "euler", "symplectic-euler", "rk4")
+MESH_INTEGRATORS = ("verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
 
 
 def refuse_for_mesh(scene: Scene) -> None:

@@ -24,6 +24,7 @@ from numba.core import types
 from clothjit import KernelPointer, njit
 
 from ..forces import jacobian_kernels, total_force
+from ..mesh_model import MeshSprings
 from ..system import System, corrected_velocities, drag_rate, position_passes, step_guard
 from .euler import VelocityState
 
@@ -37,8 +38,11 @@ class State(VelocityState):
     def __init__(self, system: System) -> None:
         super().__init__(system)
         n = self.x.shape[1]
-        self.unit = np.zeros((6, 3, n))
-        self.alpha = np.zeros((6, n))
+        # per spring: the grid's (direction, point), a mesh cloth's (0, spring)
+        rows, columns = ((1, len(system.springs.a)) if isinstance(system.springs, MeshSprings)
+                         else (6, n))
+        self.unit = np.zeros((rows, 3, columns))
+        self.alpha = np.zeros((rows, columns))
         self.buffer = np.zeros_like(system.spring_force)
         # rhs, dv, residual, preconditioned residual, direction, product, diagonal
         self.work = np.zeros((7, 3, n))
