@@ -20,6 +20,10 @@ neither.
 State: positions x, velocities v, start-of-step positions last (3, N), multipliers (6, N)
 for the classic springs or (9, N) for the FEM (rows 3 t + (0, 1, 2): C_u, C_v, C_s of the
 triangle of kind t; rows 6 + k: the hinge of kind k), reset each step.
+A mesh cloth (System.springs a mesh_model.MeshSprings): the same constraints over the
+mesh's spring list or its triangles then hinges, in list order, FEM hinges bending about
+their rest angles (C = theta - rest_angle): pipeline.physics.mesh_xpbd's sweeps, which the
+State points `constraints` at, and flat multipliers (S,) or (3 T + H,) (its docstring).
 """
 from __future__ import annotations
 
@@ -31,6 +35,8 @@ from clothjit import KernelPointer, njit
 from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICES, _comb,
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)
 from ..forces import external_force
+from ..mesh_model import MeshSprings
+from ..mesh_xpbd import multipliers, solve_mesh_fem, solve_mesh_springs
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
 
@@ -43,12 +49,19 @@ class State(VelocityState):
     def __init__(self, system: System) -> None:
         super().__init__(system)
         fem = system.fem
-        self.multiplier = (np.zeros((6, system.x0.shape[1])) if system.classic
-                           else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS, fem.nw * fem.nh)))
+        if isinstance(system.springs, MeshSprings):  # a mesh cloth: pipeline.physics.mesh_xpbd
+            # flat multipliers: (S,) per spring, or (3 T + H,) for the FEM (3 t + c: C_u,
+            # C_v, C_s of triangle t; 3 T + h: hinge h)
+            self.multiplier = multipliers(system.springs, fem, system.classic)
+            sweeps = solve_mesh_springs if system.classic else solve_mesh_fem
+        else:
+            self.multiplier = (np.zeros((6, system.x0.shape[1])) if system.classic
+                               else np.zeros((3 * TRIANGLE_KINDS + HINGE_KINDS,
+                                              fem.nw * fem.nh)))
+            sweeps = solve_springs if system.classic else solve_fem
         self.constraints = KernelPointer(
-            solve_springs if system.classic else solve_fem,
-            (self.x, self.multiplier, system.pinned, system.mass, system.springs, fem, 0.0,
-             types.int64))
+            sweeps, (self.x, self.multiplier, system.pinned, system.mass, system.springs, fem,
+                     0.0, types.int64))
 
     def arguments(self, system: System, steps: int, first_step: int) -> tuple:
         """The stepping kernel's arguments."""
