@@ -3,6 +3,7 @@
     python benchmarks/sim.py             # all cases
     python benchmarks/sim.py --quick     # fewer repeats
     python benchmarks/sim.py --features  # only the wind, mesh-collider and FEM cases (fast)
+    python benchmarks/sim.py --mesh      # only the mesh-cloth cases against the grid
 
 Per case: numba compile time (first call in a process with an empty cache, minus a warm call),
 steps per second and seconds per simulated second (best of several runs, warm), the C++
@@ -21,6 +22,16 @@ cloth model (`simulation.model: fem`, its default material) against the classic 
 Verlet on the same grid with the same steps (target: FEM at most 2.5x per step), plus FEM
 with implicit Euler for information (us/step and CG iterations per step). These cases always
 take the best of at least 3 runs (they are short), --quick or not.
+
+Mesh-cloth cases (MESH_SIZES, `--mesh` runs only these): the pinned2 scene at 50x50 and
+100x100 against the same cloth given as a mesh (`cloth.mesh`: an OBJ of the grid's points,
+in the grid's order, and its triangles, written to a temporary folder; the same two corners
+pinned), under the classic model and under the FEM, each mesh timed in alternation with
+the grid of the same points and model (target: a mesh cloth at most 1.2x the grid cloth per
+step), self-collision off for both, at the scene's steps per frame or more where the
+stability limit asks for them (the FEM: 34 and 67). The classic mesh has other springs than
+the grid (the edges and one bending spring per interior edge, no shearing springs; about as
+many in all); the FEM has the same elements.
 """
 from __future__ import annotations
 
@@ -45,6 +56,8 @@ CASES = [  # (label, scene file, grid size or None for the file's own)
 STEADY_WIND = {"velocity": [1.5, 0.0, 3.0]}
 GUSTY_WIND = {"velocity": [1.5, 0.0, 3.0], "gust": 1.5, "gust_scale": 0.5, "gust_time": 0.5}
 WIND_TARGET, MESH_TARGET, FEM_TARGET = 1.3, 2.0, 2.5  # per-step cost ratios to stay within
+MESH_CLOTH_TARGET = 1.2  # a mesh cloth against the grid cloth of the same points and model
+MESH_SIZES = (50, 100)
 FEATURE_REPEATS = 3  # at least, even with --quick: the ratios need a best of several runs
 
 
@@ -168,6 +181,77 @@ def feature_cases(repeats: int) -> None:
           f"{cg_per_step['  fem implicit-euler']:.1f} CG iterations per step")
 
 
+def grid_as_mesh(raw: dict, folder: Path) -> dict:
+    """The scene with its grid cloth replaced by the same cloth as a mesh file: the grid's
+    initial points (in the grid's order, so the pins keep their indices), its triangles and
+    uvs, written as an OBJ into `folder`."""
+    import numpy as np
+
+    from pipeline import load_scene
+    from pipeline.physics.model import build_model
+
+    c = raw["cloth"]
+    nw, nh = c["num_width_points"], c["num_height_points"]
+    model = build_model(load_scene(raw))
+    i, j = np.divmod(np.arange(nw * nh), nw)
+    lines = ["v %r %r %r" % tuple(map(float, p)) for p in model.initial_positions]
+    lines += ["vt %r %r" % (float(j[p]) / (nw - 1), float(i[p]) / (nh - 1))
+              for p in range(nw * nh)]
+    lines += ["f %d/%d %d/%d %d/%d" % tuple(np.repeat(t + 1, 2)) for t in model.triangles]
+    obj = folder / f"grid{nw}x{nh}.obj"
+    obj.write_text("\n".join(lines) + "\n")
+    grid_keys = ("width", "height", "num_width_points", "num_height_points", "orientation",
+                 "enable_shearing")
+    cloth = {k: v for k, v in c.items() if k not in grid_keys}
+    cloth["mesh"] = str(obj)
+    cloth["pinned"] = [y * nw + x for x, y in c.get("pinned", [])]
+    return dict(raw, cloth=cloth)
+
+
+def stable_steps(raw: dict) -> int:
+    """The scene's steps per frame, or more where Verlet needs them for the stability limit
+    of the cloth or of the same cloth as a mesh (the FEM at 100x100: 67), with 15 %
+    to spare."""
+    import math
+
+    from pipeline import Simulation
+
+    import warnings
+
+    with tempfile.TemporaryDirectory() as folder, warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the StabilityWarning this answers
+        dt_max = min(Simulation(r).dt_max for r in (raw, grid_as_mesh(raw, Path(folder))))
+    sim = raw.get("simulation", {})
+    fps = sim.get("frames_per_sec", 90)
+    return max(sim.get("steps_per_frame", 30), math.ceil(1.15 / (fps * dt_max)))
+
+
+def mesh_cases(repeats: int) -> None:
+    """The mesh cloth against the grid cloth of the same points, per model and size."""
+    with tempfile.TemporaryDirectory() as folder:
+        labels, raws = [], []
+        for size in MESH_SIZES:
+            for model in ("classic", "fem"):
+                # self-collision off for both, as the horizontal grid has it ("auto" turns
+                # it on for a mesh cloth)
+                grid = with_simulation(scene_dict("pinned2.json", size), model=model,
+                                       self_collision=False)
+                grid = with_simulation(grid, steps_per_frame=stable_steps(grid))
+                labels += [f"{size}x{size} {model} grid", "  as a mesh"]
+                raws += [grid, grid_as_mesh(grid, Path(folder))]
+        results = time_alternating(raws, max(repeats, FEATURE_REPEATS))
+    for label, (ours, steps, _, _) in zip(labels, results):
+        print(f"{label:22s} {float('nan'):9.2f} {steps / ours:9.0f} {ours:8.3f} {'n/a':>7s} "
+              f"{'n/a':>6s} {ours / steps * 1e6:8.1f}")
+    for k in range(0, len(labels), 2):
+        grid, mesh = (results[k][0] / results[k][1], results[k + 1][0] / results[k + 1][1])
+        ratio = mesh / grid
+        print(f"per step, pinned2 {labels[k][:-5]} mesh / grid: {mesh * 1e6:.1f} / "
+              f"{grid * 1e6:.1f} us = "
+              f"{ratio:.2f}x (target <= {MESH_CLOTH_TARGET:g}x"
+              f"{'' if ratio <= MESH_CLOTH_TARGET else ': MISSED'})")
+
+
 def time_reference(raw: dict, repeats: int) -> float | None:
     if not REFERENCE.is_dir():
         return None
@@ -238,6 +322,9 @@ def main() -> None:
     ap.add_argument("--features", action="store_true",
                     help="only the wind, mesh-collider and FEM cases (no course cases, "
                          "start-up or memory figures)")
+    ap.add_argument("--mesh", action="store_true",
+                    help="only the mesh-cloth cases (a mesh of the grid's triangles against "
+                         "the grid, both models)")
     args = ap.parse_args()
     repeats = 1 if args.quick else 3
     import numba
@@ -246,8 +333,11 @@ def main() -> None:
           f"cores {os.cpu_count()}")
     print(f"{'case':22s} {'compile s':>9s} {'steps/s':>9s} {'s/sim s':>8s} {'C++ s':>7s} "
           f"{'ratio':>6s} {'us/step':>8s}")
-    if args.features:
-        feature_cases(repeats)
+    if args.features or args.mesh:
+        if args.features:
+            feature_cases(repeats)
+        if args.mesh:
+            mesh_cases(repeats)
         return
     per_step = {}
     for label, file, size in CASES:
@@ -266,6 +356,7 @@ def main() -> None:
     print(f"per step, selfCollision / pinned2 (50x50): "
           f"{per_step['selfCollision 50x50'] / base:.2f}x")
     feature_cases(repeats)
+    mesh_cases(repeats)
     with tempfile.TemporaryDirectory() as cache:
         cold = start_to_first_frame(cache)
         warm = start_to_first_frame(cache)

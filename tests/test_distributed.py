@@ -227,6 +227,50 @@ def test_report_jobs_and_workers_together_is_a_bad_command_line(tmp_path, capsys
     assert sorted(os.listdir(tmp_path)) == ["s.json"]
 
 
+# --------------------------------------------------------------------------- a mesh cloth
+
+
+def test_mesh_cloth_batch_report_and_long_render_on_dask(dask, tmp_path, capsys):
+    """A mesh cloth (cloth.mesh, named relative to its scene's folder: the workers load
+    it from the scene's shipped folder) on the cluster: batch outputs, the sweep report's
+    GIF grid and a long render's GIF, each byte for byte the one-process run's."""
+    from test_mesh_cli import write_mesh_scene
+
+    folder = tmp_path / "scenes"
+    folder.mkdir()
+    a = write_mesh_scene(folder, "a")
+    write_mesh_scene(folder, "b", simulation__model="fem")
+    small = ["--size", "32x32", "--duration", "0.2", "-q"]
+    assert batch.main([str(folder), "--out-dir", str(tmp_path / "out"), "--scheduler",
+                       dask[0]] + small) == 0, capsys.readouterr()
+    for name in ("a", "b"):
+        ref = tmp_path / f"ref_{name}.gif"
+        assert main([str(folder / f"{name}.json"), "--out", str(ref)] + small) == 0
+        assert (tmp_path / "out" / f"{name}.gif").read_bytes() == ref.read_bytes()
+    flags = ["--sweep", "cloth.ks=200,2000", "--at", "0.2", "--size", "32x32", "--gif",
+             "--gif-size", "24x24", "--quiet"]
+    assert report.main([str(a), "--out", str(tmp_path / "one.html"), "--jobs", "1"]
+                       + flags) == 0
+    assert report.main([str(a), "--out", str(tmp_path / "many.html"), "--scheduler",
+                        dask[0]] + flags) == 0
+    assert (tmp_path / "one.gif").read_bytes() == (tmp_path / "many.gif").read_bytes()
+    assert main([str(a), "--out", str(tmp_path / "many_a.gif"), "--scheduler", dask[0]]
+                + small) == 0
+    assert (tmp_path / "many_a.gif").read_bytes() == (tmp_path / "ref_a.gif").read_bytes()
+
+
+def test_mesh_cloth_on_two_local_workers_draws_the_frames_of_one_process(tmp_path):
+    """`--workers 2`: a LocalCluster of its own; every PNG byte for byte."""
+    from test_mesh_cli import write_mesh_scene
+
+    scene = write_mesh_scene(tmp_path, simulation__model="fem")
+    small = ["--size", "32x32", "--duration", "0.3", "-q"]
+    assert main([str(scene), "--out", f"{tmp_path}/one/"] + small) == 0
+    assert main([str(scene), "--out", f"{tmp_path}/many/", "--workers", "2"] + small) == 0
+    one, many = files(tmp_path / "one"), files(tmp_path / "many")
+    assert len(one) == 8 and one == many
+
+
 # --------------------------------------------------------------------------- faults
 
 

@@ -117,6 +117,21 @@ INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
                             if name != "symplectic-euler"]
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.physics.system:motion_summary", "pipeline.physics.system:energy_guard"}
+# a mesh cloth's (cloth.mesh): its forces (classic with Provot's limit, or the FEM; the
+# stability limit's forces compiled with them), its wind, and the integrators that step it
+MESH_MODELS = [["pipeline.physics.mesh_forces:mesh_internal_forces",
+                "pipeline.physics.mesh_forces:mesh_limit_stretch"],
+               ["pipeline.physics.mesh_forces:mesh_fem_internal_forces"]]
+MESH_WINDS = [[], ["pipeline.physics.mesh_wind:add_mesh_wind_force"]]
+MESH_INTEGRATORS = [([], [])] + [STATE_KERNELS[name] for name in ("verlet", "euler", "rk4")] + [
+    (IMPLICIT + ["pipeline.physics.mesh_forces:mesh_spring_prepare",
+                 "pipeline.physics.mesh_forces:mesh_spring_apply",
+                 "pipeline.physics.mesh_forces:mesh_spring_diagonal"],
+     IMPLICIT + ["pipeline.physics.mesh_forces:mesh_fem_prepare",
+                 "pipeline.physics.mesh_forces:mesh_fem_apply",
+                 "pipeline.physics.mesh_forces:mesh_fem_diagonal"]),
+    (["pipeline.physics.mesh_xpbd:solve_mesh_springs"],
+     ["pipeline.physics.mesh_xpbd:solve_mesh_fem"])]
 
 
 def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
@@ -125,33 +140,58 @@ def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
             itertools.product(enumerate(MODELS), tables, loops, WINDS, SELF, INTEGRATORS)]
 
 
+def _mesh_scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:
+    """The same for a mesh cloth (no Provot pre-pass: its limit is one serial kernel)."""
+    return [COMMON + m + t + p[0] + w + c + i[k]
+            for (k, m), t, p, w, c, i in
+            itertools.product(enumerate(MESH_MODELS), tables, loops, MESH_WINDS, SELF,
+                              MESH_INTEGRATORS)]
+
+
+def _mesh_variants(tmp_path) -> list[tuple[Path, list[str]]]:
+    """Mesh-cloth scenes of every kind of job: classic and FEM, with wind and
+    self-collision, and with a keyframed mesh collider."""
+    from test_mesh_cloth import horizontal_grid_obj, mesh_scene
+
+    path = tmp_path / "mesh.json"
+    path.write_text(json.dumps(mesh_scene(horizontal_grid_obj(tmp_path, 6, 6), pinned=(0, 5))))
+    wind = 'wind={"velocity": [3.0, 0.0, 1.0], "gust": 1.0}'
+    bowl = ('mesh={"path": "%s", "scale": 0.3, "translation": [0.5, 0.5, 0.5], '
+            '"friction": 0.3, "keyframes": [{"time": 0}, {"time": 1, "translation": [0, 0.1, 0]}]}'
+            % (SCENES / "meshes" / "bowl.obj"))
+    return [(path, [f'simulation.model="{model}"'] + extra) for model in ("classic", "fem")
+            for extra in ([], [wind, "simulation.self_collision=true"], [bowl])]
+
+
 def _jobs(names) -> list[warmup.Job]:
     return sorted((warmup.Job(n, (), n in LINKED) for n in sorted(names)),
                   key=lambda j: -warmup.COMPILE_SECONDS[j.name])
 
 
 @pytest.mark.filterwarnings("ignore::pipeline.physics.overlap.StartInsideWarning")  # scenes that mean it
-def test_every_job_of_a_scene_has_an_estimate():
+def test_every_job_of_a_scene_has_an_estimate(tmp_path):
     """The scenes above are the estimates' kernels, and every kernel a scene of scenes/
-    compiles with any integrator is among them (start needs its estimate: without one the
-    first run would compile everything on first use, in one process)."""
+    (and a mesh cloth of each kind) compiles with any integrator that steps it is among
+    them (start needs its estimate: without one the first run would compile everything
+    on first use, in one process)."""
     from pipeline.scene import INTEGRATORS, load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.physics.system import build_system
+    from pipeline.physics.system import MESH_INTEGRATORS as STEPS_A_MESH, build_system
 
-    every = [set(listed) for listed in _scenes(ALL_TABLES, LOOPS)]
+    every = [set(listed) for listed in _scenes(ALL_TABLES, LOOPS)
+             + _mesh_scenes(ALL_TABLES, LOOPS)]
     assert set().union(*every) == set(warmup.COMPILE_SECONDS)
     assert set(warmup.STEP_SECONDS) == set(INTEGRATORS)  # every stepping kernel's estimate
     seen = set()
     larger = ["cloth.num_width_points=80", "cloth.num_height_points=80"]  # the parallel loop
     for path, overrides in [(p, []) for p in sorted(SCENES.glob("*.json"))] + [
-            (SCENES / "sphere.json", larger)]:
+            (SCENES / "sphere.json", larger)] + _mesh_variants(tmp_path):
         scene = load_scene(path, overrides)
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}
         assert {job.name for job in warmup.sim_jobs(system) if job.linked} <= LINKED
-        assert names in every  # a combination above
-        for integrator in INTEGRATORS:
+        assert names in every, (path.name, overrides)  # a combination above
+        for integrator in INTEGRATORS if scene.cloth.mesh is None else STEPS_A_MESH:
             names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
         assert names <= set(warmup.COMPILE_SECONDS), path.name
         seen |= names
@@ -268,7 +308,7 @@ def test_split_balances_the_two_processes():
     the split is within 4/3 of the best one (every way of sharing them, the linked callees
     here) and beats one process when it starts the helper."""
     rng, checks = random.Random(15), random.Random(16)
-    for names in _scenes():
+    for names in _scenes() + _mesh_scenes()[::5]:
         parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(60)]
         for part in filter(None, parts):
             jobs = _jobs(part)
@@ -431,6 +471,50 @@ def test_a_mesh_scenes_early_jobs_are_its_projection_and_sweep():
     jobs = warmup.sim_jobs(build_system(bowl, cloth_model(bowl)))
     assert all(job in jobs for job in early)
     assert warmup.early_jobs(load_scene(SCENES / "sphere.json")) == []
+
+
+def test_a_mesh_cloth_on_a_mesh_collider_has_the_same_early_jobs_as_its_system(tmp_path):
+    """early_jobs counts a mesh cloth's points from its file (the stand-in table's loop over
+    the points is chosen by their number)."""
+    from pipeline.scene import load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.physics.system import build_system
+
+    path, overrides = _mesh_variants(tmp_path)[2]
+    scene = load_scene(path, overrides)
+    early = warmup.early_jobs(scene)
+    assert [job.name for job in early] == ["pipeline.physics.colliders.mesh:project",
+                                           "pipeline.physics.colliders:sweep_mesh"]
+    jobs = warmup.sim_jobs(build_system(scene, cloth_model(scene)))
+    assert all(job in jobs for job in early)
+
+
+@pytest.mark.parametrize("model", ["classic", "fem"])
+def test_start_shares_out_a_mesh_cloths_kernels(tmp_path, monkeypatch, model):
+    """start on a mesh cloth's System hands its own kernels to the split (an unknown job
+    there would make start give up and compile everything on first use)."""
+    from pipeline.scene import load_scene
+    from pipeline.simulation import cloth_model
+    from pipeline.physics.system import build_system
+
+    path, overrides = _mesh_variants(tmp_path)[0 if model == "classic" else 3]
+    scene = load_scene(path, overrides + ['wind={"velocity": [3.0, 0.0, 1.0]}'])
+    model_ = cloth_model(scene)
+    system = build_system(scene, model_)
+    shared = []
+    monkeypatch.setattr(warmup.Job, "cached", lambda job: False)
+    monkeypatch.setattr(warmup.Job, "compile", lambda job: None)
+    monkeypatch.setattr(warmup, "split", lambda jobs, render, step: shared.append(jobs) or (
+        jobs, [], False))
+    with warmup.FirstRun("verlet") as first:
+        first.start(model_, system)
+        first.finish(SimpleNamespace(integrator="verlet", system=system))
+    names = {job.name for job in shared[0]}
+    mesh = {"pipeline.physics.mesh_wind:add_mesh_wind_force"} | set(
+        MESH_MODELS[model == "fem"])
+    assert mesh <= names and names <= set(warmup.COMPILE_SECONDS)
+    assert not any(name.startswith(("pipeline.physics.forces:", "pipeline.physics.fem:",
+                                    "pipeline.physics.wind:")) for name in names)
 
 
 class _Stdin(io.BytesIO):

@@ -53,7 +53,7 @@ from pipeline.physics.integrators import state_class
 from pipeline.physics.model import DIRECTION_TYPE, build_model
 from pipeline.physics.system import System, build_system, damping_at, drag_gamma, stability_limit
 from pipeline.run.outputs import atomic_file
-from pipeline.scene import INTEGRATORS, MODELS, FemMaterial, Scene, load_scene
+from pipeline.scene import INTEGRATORS, MODELS, FemMaterial, Scene, SceneError, load_scene
 
 REFERENCE = "rk4"
 REFERENCE_FACTOR = 16  # the reference runs at dt_scene / 16 ...
@@ -587,6 +587,10 @@ def _bench_into(args, out: Path) -> int:
     data = scene_data(args.scene)
     name = Path(args.scene).stem
     c = data["cloth"]
+    if "mesh" in c:
+        raise SceneError(f"{args.scene}: cloth.mesh: render bench runs grid cloths only (it "
+                         "resizes the grid and runs every integrator; implicit Euler and "
+                         "XPBD do not step a mesh cloth yet)")
     nw, nh = c["num_width_points"], c["num_height_points"]
     if args.grid is None:
         grid = (min(nw, DEFAULT_GRID), min(nh, DEFAULT_GRID))

@@ -40,6 +40,8 @@ class Plan:
     #: there is no pilot (grid_reason)
     grid_choice: dict | None = None
     grid_reason: str = ""
+    #: a mesh cloth (cloth.mesh): {"file", "points", "triangles"}; None for the grid
+    mesh: dict | None = None
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -74,7 +76,9 @@ class Plan:
                            f"{self.steps_per_frame_max}, starting at "
                            f"{self.steps_per_frame_start} (exact: {self.steps_per_frame_exact}),"
                            " chosen per frame by step doubling")
-        if self.fidelity == "auto" and self.model == "fem":
+        if self.mesh is not None:
+            out.append(self._mesh_line())
+        elif self.fidelity == "auto" and self.model == "fem":
             out.append(self._grid_line())
         out.append(f"self-collision: {self.self_collision}")
         for c in self.colliders:
@@ -99,6 +103,14 @@ class Plan:
         out.extend(self.reasons)
         return out
 
+    def _mesh_line(self) -> str:
+        """The plan's line on a mesh cloth (in place of the FEM grid's)."""
+        m = self.mesh
+        line = f"mesh: {m['points']} points, {m['triangles']} triangles from {m['file']}"
+        if self.fidelity == "auto" and self.model == "fem":
+            line += f" (no FEM grid pilot: {self.grid_reason})"
+        return line
+
     def _grid_line(self) -> str:
         """The plan's line on the FEM grid (fidelity auto)."""
         from .fem_grid import grid_text
@@ -122,9 +134,6 @@ def choose_integrator(scene: Scene, dt_max: float) -> tuple[str, list[str]]:
         floor = math.ceil(COARSE_RATIO * floor)
     floor = max(2, floor)
     implicit = IMPLICIT_COST[sim.model] * sim.steps_per_frame
-    if scene.cloth.mesh is not None:
-        return "verlet", [f"Verlet at >= {floor} steps per frame (dt_max {dt_max:.3g} s): "
-                          "implicit Euler does not step a mesh cloth yet"]
     why = (f"Verlet needs >= {floor} steps per frame for stability (dt_max {dt_max:.3g} s); "
            f"implicit Euler at the file's {sim.steps_per_frame} would cost about "
            f"{implicit:.0f} Verlet steps per frame")
@@ -167,6 +176,11 @@ def make_plan(sim) -> Plan:
                 colliders=colliders, grid=(sim.model.nw, sim.model.nh),
                 grid_choice=None if sim.grid_choice is None else sim.grid_choice.as_dict(),
                 grid_reason=sim.grid_reason)
+    mesh = sim.model.mesh
+    if mesh is not None:
+        plan.mesh = {"file": str(mesh.source), "points": int(sim.model.n),
+                     "triangles": int(len(mesh.topology.triangles))}
+        plan.grid_reason = plan.grid_reason or "a mesh cloth has no grid to coarsen"
     if auto:
         st = sim.stepper
         plan.steps_per_frame_min, plan.steps_per_frame_start = st.n_min, st.n

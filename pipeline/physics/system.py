@@ -17,6 +17,7 @@ from clothjit import KernelPointer, njit
 from pipeline.scene import Scene, SceneError
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
+from .contact import RobustContact, pack_contact, robust_contact
 from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
                           stretch_limits)
 from .fem import FemParams, estimate_omega_max, no_fem
@@ -93,6 +94,7 @@ class System(NamedTuple):
     reach: Reach  # which passes can act (pipeline.physics.reach); disarmed: all of them
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     pin_motion: PinMotion | None  # a mesh cloth's keyframed pins; None: pins stay put
+    contact: RobustContact | None  # robust self-contact (simulation.contact); None: course
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
 
 
@@ -156,7 +158,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         springs=((offsets, order, model.exists, model.rest, model.stiffness) if mesh is None
                  else mesh.springs),
         needs_velocity=scene.wind is not None,
-        self_collision=bool(scene.self_collision),
+        self_collision=bool(scene.self_collision) and sim.contact != "robust",
         scratch=(SelfCollisionScratch(model.n if scene.self_collision else 0).as_tuple()
                  if either else None),
         spring_force=(spring_force_buffer(model.n, model.nw) if mesh is None
@@ -168,6 +170,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         reach=new_reach(model.n),
         colliders_last=False,
         pin_motion=None if mesh is None else mesh.pin_motion,
+        contact=robust_contact_of(scene, model),
     )
     return system._replace(kernels=step_kernels(system))
 
@@ -227,6 +230,15 @@ def collision_box(model: ClothModel) -> tuple[float, float]:
         side = 3.0 * model.mesh.topology.mean_edge
         return side, side
     return (3.0 * model.width) / model.nw, (3.0 * model.height) / model.nh
+
+
+def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
+    """The packed robust self-contact when the scene asks for it and self-collision is on."""
+    if scene.simulation.contact != "robust" or not scene.self_collision:
+        return None
+    return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles,
+                        model.x0, model.point_mass,
+                        model.pinned)
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
@@ -424,6 +436,13 @@ def position_passes(x, last, system, t_start):
         k.stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
+    _contact_pass(x, last, s.contact)
+
+
+@njit(cache=True, nogil=True, no_cpython_wrapper=True)
+def _contact_pass(x, x0, contact):
+    if contact is not None:  # None: numba prunes the pass (the course contact)
+        robust_contact(x, x0, contact)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)

@@ -33,6 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from pipeline.physics.fem import FemParams
 from pipeline.physics.integrators import stepping_kernel
 
 from .progress import bar, counter
@@ -79,6 +80,14 @@ from .progress import bar, counter
 # its pre-pass is a pointer chosen alike: 0.84-0.99 s and the serial pre-pass 0.18-0.23 s
 # against 1.56-1.94 s with the parallel pre-pass linked (three rounds each, about 07:50), scaled
 # by 0.79, its old estimate over its old time.
+# A mesh cloth's kernels (pipeline.physics.mesh_forces, mesh_wind), each compiled with its
+# linked callees (the forces' pointers with the forces the stability limit calls from
+# Python, mesh_omega_max: the same types, so cached by that job): three cold processes
+# each, alternately with the grid's internal forces, Provot, wind and FEM forces measured
+# alike (2026-11-27 at about 17:00; CPU seconds: mesh internal forces 0.95-0.99, Provot
+# 0.21, wind 2.25-2.37, FEM forces 1.71-1.82 after the rest angles' kernel the model builds
+# first; the grid's nine kernels 5.50 s in all against their 8.65 s of estimates), scaled
+# by 1.57, those estimates over those times.
 # Two compiles at once each run about 1.25x slower (measured before collide_all's
 # projections were inlined once: 15.2 s against 11.3 s alone, the renderer 13.4 s against
 # 11.7 s): CONTENTION.
@@ -128,6 +137,21 @@ COMPILE_SECONDS = {
     "pipeline.physics.integrators.euler:euler_update": 0.3,
     "pipeline.physics.integrators.rk4:_stage": 0.65,
     "pipeline.physics.integrators.rk4:_finish": 0.4,
+    "pipeline.physics.mesh_forces:mesh_internal_forces": 1.55,
+    "pipeline.physics.mesh_forces:mesh_fem_internal_forces": 2.8,
+    "pipeline.physics.mesh_forces:mesh_limit_stretch": 0.35,
+    "pipeline.physics.mesh_wind:add_mesh_wind_force": 3.6,
+    # a mesh cloth's implicit Euler and XPBD kernels: set beside the grid's of the same
+    # kind (the XPBD sweeps' cold compiles measured 0.33 and 0.85 s against the grid's
+    # 0.49 and 1.37 s), not traced
+    "pipeline.physics.mesh_forces:mesh_spring_prepare": 1.5,
+    "pipeline.physics.mesh_forces:mesh_spring_apply": 1.5,
+    "pipeline.physics.mesh_forces:mesh_spring_diagonal": 0.4,
+    "pipeline.physics.mesh_forces:mesh_fem_prepare": 0.4,
+    "pipeline.physics.mesh_forces:mesh_fem_apply": 3.0,
+    "pipeline.physics.mesh_forces:mesh_fem_diagonal": 1.0,
+    "pipeline.physics.mesh_xpbd:solve_mesh_springs": 0.6,
+    "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
 }
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
@@ -205,9 +229,11 @@ def kernel_pointers(system) -> list:
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
                 *_table_pointers(system.colliders)]
-    if system.wind is not None:
+    if system.wind is not None and hasattr(system.wind, "band"):  # a mesh's wind has none
         pointers.append(system.wind.band)
-    pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]  # absent: classic
+    if isinstance(system.fem, FemParams):  # absent for the classic grid; a mesh's (MeshFem)
+        # has no element pointers
+        pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]
     return [p for p in pointers if p is not None and p.present]
 
 
@@ -227,9 +253,19 @@ def early_jobs(scene) -> list[Job]:
     colliders = scene.colliders
     if not any(type(c) is mesh.SCENE_TYPE for c in colliders):
         return []
-    points = scene.cloth.num_width_points * scene.cloth.num_height_points
-    table = stand_in_table(colliders, points)
+    table = stand_in_table(colliders, cloth_points(scene))
     return [Job.of(p.dispatcher, p.argtypes) for p in (table.mesh, table.mesh_sweep)]
+
+
+def cloth_points(scene) -> int:
+    """The number of the cloth's points: the grid's, or the mesh file's once welded (read
+    once: pipeline.physics.cloth_mesh keeps what it loaded)."""
+    c = scene.cloth
+    if c.mesh is None:
+        return c.num_width_points * c.num_height_points
+    from pipeline.physics.cloth_mesh import load_cloth_mesh
+
+    return len(load_cloth_mesh(c.mesh).points)
 
 
 def sim_jobs(system) -> list[Job]:
@@ -244,8 +280,12 @@ def sim_jobs(system) -> list[Job]:
               "pipeline.physics.system:energy_guard": (0.0, 0.0, s.gravity, s.total_mass,
                                                s.slack_speed)}
     jobs = [Job(n, a, True) for n, a in linked.items()]
-    if not s.classic:  # the stability limit's (system.stability_limit)
-        jobs.append(Job("pipeline.physics.fem:fem_filtered_jacobian_product", (s.fem.x_rest, s.fem, x, f)))
+    # the stability limit's (system.stability_limit); a mesh cloth's (mesh_omega_max) calls
+    # the forces its internal-forces pointer calls, with the same types: compiled (and
+    # cached) with that pointer's job, so no job of its own
+    if not s.classic and isinstance(s.fem, FemParams):
+        jobs.append(Job("pipeline.physics.fem:fem_filtered_jacobian_product",
+                        (s.fem.x_rest, s.fem, x, f)))
     return jobs + [Job.of(p.dispatcher, p.argtypes) for p in kernel_pointers(s)]
 
 

@@ -269,6 +269,7 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         self_collision=s.get("self_collision", d.self_collision),
         fidelity=str(s.get("fidelity", d.fidelity)),
         tolerance_px=float(s.get("tolerance_px", d.tolerance_px)),
+        contact=str(s.get("contact", d.contact)),
     )
 
     cam = data.get("camera")
@@ -313,6 +314,7 @@ def _cloth(c: dict, base_dir: Path) -> Cloth:
         mass_map=_mass_map(c.get("mass_map"), base_dir),
         mass_map_range=tuple(float(v) for v in c.get("mass_map_range", Cloth.mass_map_range)),
         fem=FemMaterial(**{k: float(v) for k, v in c.get("fem", {}).items()}),
+        friction=float(c.get("friction", Cloth.friction)),
     )
     if "mesh" not in c:
         return Cloth(

@@ -105,6 +105,7 @@ class Cloth:
     mass_map: tuple[tuple[float, ...], ...] | Path | None = None
     mass_map_range: tuple[float, float] = (1.0, 2.0)  # image: black, white multipliers
     fem: FemMaterial = FemMaterial()  # used when simulation.model is "fem"
+    friction: float = 0.3  # cloth-on-cloth friction under robust contact
     mesh: ClothMeshSource | None = None  # None: the grid
     pin_selections: tuple[PinSelection, ...] = ()  # a mesh cloth's pins, in file order
 
@@ -200,6 +201,7 @@ class SimulationSettings:
     self_collision: bool | str = "auto"  # True, False or "auto" (on for vertical cloth)
     fidelity: str = "exact"  # "exact" or "auto" (pipeline.fidelity.controller)
     tolerance_px: float = 1.0  # auto: screen-space error a frame may add
+    contact: str = "course"  # "course" or "robust" (pipeline.physics.contact)
 
 
 #: `"camera": "course"`: the course viewer's camera exactly (SPEC section 4).

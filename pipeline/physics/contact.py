@@ -1,0 +1,420 @@
+"""Robust self-contact (`simulation.contact` "robust"): the cloth never passes through
+itself (Bridson, Fedkiw and Anderson 2002, "Robust treatment of collisions, contact and
+friction for cloth animation", in position form).
+
+After the integrator and the other position passes have moved the points from x0 (the
+start of the step, free of crossings) to x1, between every point and triangle, and every
+two edges, of the cloth that share no vertex and lie further apart than `thickness` h at
+rest:
+1. proximity: pairs closer than h at x1 are pushed apart to h (inelastic repulsion, Jacobi
+   passes averaged per point), with friction: their relative tangential motion over the
+   step shrinks by at most `friction` times the push;
+2. continuous collision detection (pipeline.physics.ccd) on the straight paths x0 -> x1:
+   each pair that meets within the step is stopped at a small separation along the
+   normal at impact, on the side it came from (rounds of Jacobi passes);
+3. fail-safe: while any pair still meets, every free point of every such pair goes back
+   to x0 (moves no further this step). x0 has no crossing, so this ends, at worst with
+   every point back at x0; a pair that meets with none of its points free (pins moving
+   into the cloth) is counted as unresolvable.
+
+Pairs are found on a spatial hash of the primitives' swept boxes (rebuilt every round,
+cells as large as the longest swept box side, at least the mean edge), each pair tested
+once, in its canonical cell. Everything is serial and in a fixed order: results are
+bit-for-bit the same on every run and thread count.
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+
+from clothjit import njit
+
+from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
+
+CCD_ROUNDS = 4
+IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
+TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
+STATS = 8  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
+#           unresolvable pairs, smallest gap (in thickness, at the step's end), steps
+
+
+class RobustContact(NamedTuple):
+    """The packed robust self-contact of a cloth (System.contact)."""
+
+    thickness: float
+    friction: float
+    triangles: np.ndarray  # (T, 3) int64
+    edges: np.ndarray  # (E, 2) int64
+    rest: np.ndarray  # (3, N) rest positions (pairs closer than h there are neighbours)
+    inv_mass: np.ndarray  # (N,) 1 / mass, 0 for pinned points
+    start: np.ndarray  # (3, N) scratch: x0
+    push: np.ndarray  # (3, N) scratch: corrections summed
+    pushes: np.ndarray  # (N,) scratch: corrections counted
+    frozen: np.ndarray  # (N,) uint8 scratch
+    box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
+    bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash
+    entries: np.ndarray  # (cap,) int64 scratch of the hash
+    roots: np.ndarray  # (4,) scratch of the cubic's roots
+    stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
+
+
+def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
+                 rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray) -> RobustContact:
+    """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N)."""
+    tris = np.ascontiguousarray(triangles, dtype=np.int64)
+    pairs = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
+    edges = np.unique(pairs, axis=0)
+    n = rest.shape[1]
+    size = 1
+    while size < 4 * max(len(tris), len(edges)):
+        size <<= 1
+    inv = np.where(pinned != 0, 0.0, 1.0 / mass)
+    stats = np.zeros(STATS)
+    stats[5] = math.inf
+    return RobustContact(float(thickness), float(friction), tris, edges,
+                         np.ascontiguousarray(rest, dtype=np.float64), inv,
+                         np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
+                         np.zeros((6, max(len(tris), len(edges)))),
+                         np.zeros(size + 1, np.int64), np.zeros(16 * size, np.int64),
+                         np.zeros(4), stats)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+def _p(x, i):
+    return (x[0, i], x[1, i], x[2, i])
+
+
+# --- the spatial hash of swept boxes ---------------------------------------------------------
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+def _hash(ix, iy, iz, mask):
+    h = (np.uint64(ix) * np.uint64(0x9E3779B97F4A7C15)) ^ (
+        np.uint64(iy) * np.uint64(0xC2B2AE3D27D4EB4F)) ^ (np.uint64(iz) * np.uint64(0x165667B19E3779F9))
+    h ^= h >> np.uint64(29)
+    return np.int64(h & np.uint64(mask))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _boxes(x0, x1, prims, margin, box):
+    """box[:, k] = the swept box of primitive k (its points at x0 and x1), grown by margin;
+    returns its largest side."""
+    side = 0.0
+    for k in range(prims.shape[0]):
+        for a in range(3):
+            lo, hi = math.inf, -math.inf
+            for j in range(prims.shape[1]):
+                i = prims[k, j]
+                lo = min(lo, x0[a, i], x1[a, i])
+                hi = max(hi, x0[a, i], x1[a, i])
+            box[a, k], box[3 + a, k] = lo - margin, hi + margin
+            side = max(side, hi - lo + 2.0 * margin)
+    return side
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _build(box, count, cell, bucket_start, entries):
+    """Hash `count` boxes into cells of side `cell`; False if the entries do not fit."""
+    size = bucket_start.shape[0] - 1
+    mask = size - 1
+    bucket_start[:] = 0
+    total = 0
+    for k in range(count):
+        lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
+        hi = (math.floor(box[3, k] / cell), math.floor(box[4, k] / cell), math.floor(box[5, k] / cell))
+        for ix in range(lo[0], hi[0] + 1):
+            for iy in range(lo[1], hi[1] + 1):
+                for iz in range(lo[2], hi[2] + 1):
+                    bucket_start[_hash(ix, iy, iz, mask) + 1] += 1
+                    total += 1
+    if total > entries.shape[0]:
+        return False
+    for b in range(size):
+        bucket_start[b + 1] += bucket_start[b]
+    fill = bucket_start[:-1].copy()
+    for k in range(count):
+        lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
+        hi = (math.floor(box[3, k] / cell), math.floor(box[4, k] / cell), math.floor(box[5, k] / cell))
+        for ix in range(lo[0], hi[0] + 1):
+            for iy in range(lo[1], hi[1] + 1):
+                for iz in range(lo[2], hi[2] + 1):
+                    b = _hash(ix, iy, iz, mask)
+                    entries[fill[b]] = k
+                    fill[b] += 1
+    return True
+
+
+# --- pairs -----------------------------------------------------------------------------------
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _shares(tri, p):
+    return tri[0] == p or tri[1] == p or tri[2] == p
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _rest_close(c, ids):
+    """Whether the pair (4 point ids: p, a, b, c or a, b, c, d) lies within the thickness
+    at rest (neighbours in a fine mesh: never a contact)."""
+    r = c.rest
+    if ids[4] == 0:
+        d = point_triangle_distance(_p(r, ids[0]), _p(r, ids[1]), _p(r, ids[2]), _p(r, ids[3]))[0]
+    else:
+        d = edge_edge_distance(_p(r, ids[0]), _p(r, ids[1]), _p(r, ids[2]), _p(r, ids[3]))[0]
+    return d < c.thickness
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _visit(x0, x1, c, mode, cell):
+    """Visit every candidate pair once: mode 0 CCD responses, else proximity at x1; 1 CCD
+    responses only; 2 CCD detection for the fail-safe (freezing). Returns the pairs acted
+    on. The triangles' and edges' boxes grow by the margin (h for proximity), the points'
+    not: a box pair overlaps where the primitives may be within the margin."""
+    tris, edges = c.triangles, c.edges
+    n = x0.shape[1]
+    acted = 0
+    h = c.thickness
+    margin = h if mode == 0 else h * TOLERANCE
+    # point-triangle: hash the triangles, query each point's swept box (cells doubled
+    # until the entries fit)
+    _boxes(x0, x1, tris, margin, c.box)
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries):
+        cell *= 2.0
+    mask = c.bucket_start.shape[0] - 2
+    ids = np.zeros(5, np.int64)
+    for p in range(n):
+        plo = (min(x0[0, p], x1[0, p]), min(x0[1, p], x1[1, p]), min(x0[2, p], x1[2, p]))
+        phi = (max(x0[0, p], x1[0, p]), max(x0[1, p], x1[1, p]), max(x0[2, p], x1[2, p]))
+        for ix in range(math.floor(plo[0] / cell), math.floor(phi[0] / cell) + 1):
+            for iy in range(math.floor(plo[1] / cell), math.floor(phi[1] / cell) + 1):
+                for iz in range(math.floor(plo[2] / cell), math.floor(phi[2] / cell) + 1):
+                    b = _hash(ix, iy, iz, mask)
+                    for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
+                        t = c.entries[e]
+                        box = c.box
+                        if (box[0, t] > phi[0] or box[3, t] < plo[0] or box[1, t] > phi[1]
+                                or box[4, t] < plo[1] or box[2, t] > phi[2] or box[5, t] < plo[2]):
+                            continue
+                        # the canonical cell: that of the larger of the two lower corners
+                        if (math.floor(max(box[0, t], plo[0]) / cell) != ix
+                                or math.floor(max(box[1, t], plo[1]) / cell) != iy
+                                or math.floor(max(box[2, t], plo[2]) / cell) != iz):
+                            continue
+                        if _shares(tris[t], p):
+                            continue
+                        ids[0], ids[1], ids[2], ids[3], ids[4] = p, tris[t, 0], tris[t, 1], tris[t, 2], 0
+                        acted += _pair(x0, x1, c, mode, ids)
+    # edge-edge: hash the edges, query each edge's swept box against later edges
+    _boxes(x0, x1, edges, 0.5 * margin, c.box)
+    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.entries):
+        cell *= 2.0
+    box = c.box
+    for e1 in range(edges.shape[0]):
+        a, b2 = edges[e1, 0], edges[e1, 1]
+        for ix in range(math.floor(box[0, e1] / cell), math.floor(box[3, e1] / cell) + 1):
+            for iy in range(math.floor(box[1, e1] / cell), math.floor(box[4, e1] / cell) + 1):
+                for iz in range(math.floor(box[2, e1] / cell), math.floor(box[5, e1] / cell) + 1):
+                    bk = _hash(ix, iy, iz, mask)
+                    for e in range(c.bucket_start[bk], c.bucket_start[bk + 1]):
+                        e2 = c.entries[e]
+                        if e2 <= e1:
+                            continue
+                        if (box[0, e2] > box[3, e1] or box[3, e2] < box[0, e1]
+                                or box[1, e2] > box[4, e1] or box[4, e2] < box[1, e1]
+                                or box[2, e2] > box[5, e1] or box[5, e2] < box[2, e1]):
+                            continue
+                        if (math.floor(max(box[0, e1], box[0, e2]) / cell) != ix
+                                or math.floor(max(box[1, e1], box[1, e2]) / cell) != iy
+                                or math.floor(max(box[2, e1], box[2, e2]) / cell) != iz):
+                            continue
+                        c2, d2 = edges[e2, 0], edges[e2, 1]
+                        if a == c2 or a == d2 or b2 == c2 or b2 == d2:
+                            continue
+                        ids[0], ids[1], ids[2], ids[3], ids[4] = a, b2, c2, d2, 1
+                        acted += _pair(x0, x1, c, mode, ids)
+    return acted
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pair(x0, x1, c, mode, ids):
+    """One candidate pair (ids: 4 points and the kind, 0 point-triangle, 1 edge-edge)."""
+    h = c.thickness
+    c.stats[0] += 1.0
+    i0, i1, i2, i3 = ids[0], ids[1], ids[2], ids[3]
+    kind = ids[4]
+    tol = h * TOLERANCE
+    if kind == 0:
+        t = point_triangle_impact(_p(x0, i0), _p(x0, i1), _p(x0, i2), _p(x0, i3),
+                                  _p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3), tol, c.roots)
+    else:
+        t = edge_edge_impact(_p(x0, i0), _p(x0, i1), _p(x0, i2), _p(x0, i3),
+                             _p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3), tol, c.roots)
+    if t < 0.0:
+        if mode != 0:
+            return 0
+        # no impact: proximity at the end of the step
+        if kind == 0:
+            d, u, v, w = point_triangle_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
+            weights = (1.0, -u, -v, -w)
+        else:
+            d, s, tt = edge_edge_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
+            weights = (1.0 - s, s, -(1.0 - tt), -tt)
+        if d >= h or _rest_close(c, ids):
+            return 0
+        c.stats[1] += 1.0
+        c.stats[5] = min(c.stats[5], d / h)
+        _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d, True)
+        return 1
+    if _rest_close(c, ids):
+        return 0
+    if mode == 2:
+        free = 0
+        for i in (i0, i1, i2, i3):
+            if c.inv_mass[i] > 0.0 and c.frozen[i] == 0:
+                c.frozen[i] = 1
+                free += 1
+        if free == 0:
+            c.stats[4] += 1.0
+        return 1
+    xt = np.empty((3, 4))
+    for j in range(4):
+        i = ids[j]
+        for a in range(3):
+            xt[a, j] = x0[a, i] + t * (x1[a, i] - x0[a, i])
+    if kind == 0:
+        _, u, v, w = point_triangle_distance(_p(xt, 0), _p(xt, 1), _p(xt, 2), _p(xt, 3))
+        weights = (1.0, -u, -v, -w)
+    else:
+        _, s, tt = edge_edge_distance(_p(xt, 0), _p(xt, 1), _p(xt, 2), _p(xt, 3))
+        weights = (1.0 - s, s, -(1.0 - tt), -tt)
+    normal = _normal(x0, x1, ids, weights, 0.0)
+    # the end separation along the normal; stop the pair IMPACT_GAP h apart on its side
+    sep = 0.0
+    for j in range(4):
+        for a in range(3):
+            sep += weights[j] * x1[a, ids[j]] * normal[a]
+    target = IMPACT_GAP * h
+    if sep >= target:
+        return 0
+    c.stats[2] += 1.0
+    _respond(x0, x1, c, ids, weights, normal, target - sep, False)
+    return 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _normal(x0, x1, ids, weights, d):
+    """The unit normal along which the pair separates, pointing from the second primitive
+    towards the first on the side they were at the step's start: the direction between
+    their closest points at x1 when apart, else the triangle's normal (the edges' cross
+    product), oriented by the start."""
+    gap = (0.0, 0.0, 0.0)
+    start = (0.0, 0.0, 0.0)
+    for j in range(4):
+        i = ids[j]
+        gap = (gap[0] + weights[j] * x1[0, i], gap[1] + weights[j] * x1[1, i],
+               gap[2] + weights[j] * x1[2, i])
+        start = (start[0] + weights[j] * x0[0, i], start[1] + weights[j] * x0[1, i],
+                 start[2] + weights[j] * x0[2, i])
+    if ids[4] == 0:
+        e1 = (x1[0, ids[2]] - x1[0, ids[1]], x1[1, ids[2]] - x1[1, ids[1]], x1[2, ids[2]] - x1[2, ids[1]])
+        e2 = (x1[0, ids[3]] - x1[0, ids[1]], x1[1, ids[3]] - x1[1, ids[1]], x1[2, ids[3]] - x1[2, ids[1]])
+    else:
+        e1 = (x1[0, ids[1]] - x1[0, ids[0]], x1[1, ids[1]] - x1[1, ids[0]], x1[2, ids[1]] - x1[2, ids[0]])
+        e2 = (x1[0, ids[3]] - x1[0, ids[2]], x1[1, ids[3]] - x1[1, ids[2]], x1[2, ids[3]] - x1[2, ids[2]])
+    geo = (e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2], e1[0] * e2[1] - e1[1] * e2[0])
+    length = math.sqrt(gap[0] ** 2 + gap[1] ** 2 + gap[2] ** 2)
+    if d > 0.0 and length > 0.0:
+        n = (gap[0] / length, gap[1] / length, gap[2] / length)
+    else:
+        g = math.sqrt(geo[0] ** 2 + geo[1] ** 2 + geo[2] ** 2)
+        n = (geo[0] / g, geo[1] / g, geo[2] / g) if g > 0.0 else (0.0, 1.0, 0.0)
+    side = start[0] * n[0] + start[1] * n[1] + start[2] * n[2]
+    if side < 0.0:
+        n = (-n[0], -n[1], -n[2])
+    return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _respond(x0, x1, c, ids, weights, normal, amount, friction):
+    """Add to c.push the moves that separate the pair by `amount` more along `normal`,
+    shared by inverse mass and weight; with `friction`, also damp its relative tangential
+    motion over the step by at most friction * amount."""
+    total = 0.0
+    for j in range(4):
+        total += weights[j] * weights[j] * c.inv_mass[ids[j]]
+    if total <= 0.0:
+        c.stats[4] += 1.0
+        return
+    tangential = (0.0, 0.0, 0.0)
+    if friction and c.friction > 0.0:
+        rel = (0.0, 0.0, 0.0)
+        for j in range(4):
+            i = ids[j]
+            rel = (rel[0] + weights[j] * (x1[0, i] - x0[0, i]), rel[1] + weights[j] * (x1[1, i] - x0[1, i]),
+                   rel[2] + weights[j] * (x1[2, i] - x0[2, i]))
+        along = rel[0] * normal[0] + rel[1] * normal[1] + rel[2] * normal[2]
+        tan = (rel[0] - along * normal[0], rel[1] - along * normal[1], rel[2] - along * normal[2])
+        size = math.sqrt(tan[0] ** 2 + tan[1] ** 2 + tan[2] ** 2)
+        if size > 0.0:
+            cut = min(1.0, c.friction * amount / size)
+            tangential = (-cut * tan[0], -cut * tan[1], -cut * tan[2])
+    for j in range(4):
+        i = ids[j]
+        k = weights[j] * c.inv_mass[i] / total
+        if k == 0.0:
+            continue
+        for a in range(3):
+            c.push[a, i] += k * (amount * normal[a] + tangential[a])
+        c.pushes[i] += 1.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _apply(x, c):
+    for i in range(x.shape[1]):
+        if c.pushes[i] > 0.0:
+            for a in range(3):
+                x[a, i] += c.push[a, i] / c.pushes[i]
+            c.push[:, i] = 0.0
+            c.pushes[i] = 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _cell(x0, x1, c):
+    """Cells as large as the longest swept box side of any triangle (at least two mean
+    edges), so that a primitive covers at most 2 x 2 x 2 cells."""
+    return _boxes(x0, x1, c.triangles, c.thickness, c.box)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def robust_contact(x, x0, c):
+    """The robust self-contact of one step from x0 to x (3, N), in place (see above)."""
+    c.stats[6] += 1.0
+    for a in range(3):
+        for i in range(x.shape[1]):
+            c.start[a, i] = x0[a, i]
+    start = c.start
+    cell = _cell(start, x, c)
+    # one visit for both: CCD where a pair meets within the step, else proximity
+    if _visit(start, x, c, 0, cell) == 0:
+        return  # no pair met or came close: nothing moved, no crossing
+    _apply(x, c)
+    # the pushes may have made new meetings: CCD rounds until one finds none
+    for _ in range(CCD_ROUNDS):
+        if _visit(start, x, c, 1, _cell(start, x, c)) == 0:
+            return
+        _apply(x, c)
+    c.frozen[:] = 0
+    while True:
+        before = c.frozen.sum()
+        if _visit(start, x, c, 2, _cell(start, x, c)) == 0:
+            break
+        after = c.frozen.sum()
+        for i in range(x.shape[1]):
+            if c.frozen[i]:
+                for a in range(3):
+                    x[a, i] = start[a, i]
+        c.stats[3] += after - before
+        if after == before:
+            break  # only pinned points left moving into each other: unresolvable
