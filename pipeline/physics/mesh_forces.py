@@ -39,28 +39,39 @@ def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
     count, n = a.shape[0], x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, count)
-        for s in range(lo, hi):
-            p, q = a[s], b[s]
-            dx = x[0, q] - x[0, p]
-            dy = x[1, q] - x[1, p]
-            dz = x[2, q] - x[2, p]
-            length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            k = stiffness[s] * (length - rest[s])
-            ok = length > 0.0  # zero length: direction undefined, no force
-            buffer[0, s] = (dx / length) * k if ok else 0.0
-            buffer[1, s] = (dy / length) * k if ok else 0.0
-            buffer[2, s] = (dz / length) * k if ok else 0.0
+        _spring_pass(x, a, b, rest, stiffness, buffer, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
             m = mass[p]
             fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
-            for j in range(start[p], start[p + 1]):
-                s, w = slot[j], sign[j]
+            for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
+                s, w = np.uint64(slot[j]), sign[j]
                 fx += w * buffer[0, s]
                 fy += w * buffer[1, s]
                 fz += w * buffer[2, s]
             f[0, p], f[1, p], f[2, p] = fx, fy, fz
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _spring_pass(x, a, b, rest, stiffness, buffer, lo, hi):
+    """buffer[:, s] = the force of spring s on its point a, s in [lo, hi): the endpoints'
+    differences gathered first (unsigned indices: no wraparound test), then arithmetic
+    over consecutive springs that LLVM vectorises."""
+    for s in range(lo, hi):
+        p, q = np.uint64(a[s]), np.uint64(b[s])
+        for ax in range(3):
+            buffer[ax, s] = x[ax, q] - x[ax, p]
+    bx, by, bz = buffer[0, lo:hi], buffer[1, lo:hi], buffer[2, lo:hi]
+    r, k = rest[lo:hi], stiffness[lo:hi]
+    for i in range(hi - lo):
+        dx, dy, dz = bx[i], by[i], bz[i]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        scale = k[i] * (length - r[i]) / length
+        ok = length > 0.0  # zero length: direction undefined, no force
+        bx[i] = dx * scale if ok else 0.0
+        by[i] = dy * scale if ok else 0.0
+        bz[i] = dz * scale if ok else 0.0
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -107,8 +118,8 @@ def mesh_fem_forces(x, fem, mass, gravity, f):
         for p in range(lo, hi):
             m = mass[p]
             fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
-            for j in range(start[p], start[p + 1]):
-                r = slot[j]
+            for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
+                r = np.uint64(slot[j])
                 fx += out[r, 0]
                 fy += out[r, 1]
                 fz += out[r, 2]
