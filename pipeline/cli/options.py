@@ -134,6 +134,9 @@ def add_render_options(p: argparse.ArgumentParser, shaders: str) -> None:
                    help="random seed (same as --set simulation.seed=N)")
     p.add_argument("--integrator", metavar="NAME",
                    help="integrator (same as --set simulation.integrator=NAME)")
+    p.add_argument("--contact", choices=("course", "robust"),
+                   help="the cloth's self-contact: course (default, SPEC section 2) or robust "
+                        "(never passes through itself; same as --set simulation.contact=...)")
     p.add_argument("--fidelity", choices=("exact", "auto"),
                    help="exact (default): every step as the scene says; auto: model no more "
                         "than the scene needs, within --tolerance pixels per frame (same as "
@@ -149,7 +152,7 @@ def add_render_options(p: argparse.ArgumentParser, shaders: str) -> None:
 
 #: The destinations of `add_render_options` (what `render batch` hands each scene's run).
 RENDER_OPTIONS = ("shader", "duration", "frames", "fps", "size", "aa", "seed", "integrator",
-                  "fidelity", "tolerance", "overrides")
+                  "contact", "fidelity", "tolerance", "overrides")
 
 
 def add_cluster_options(p: argparse.ArgumentParser) -> None:

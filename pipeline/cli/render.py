@@ -132,12 +132,15 @@ def check_shader(shader: str) -> None:
 
 
 def scene_overrides(args) -> list[str]:
-    """--set, --seed, --integrator, --fidelity, --tolerance and --size as scene overrides."""
+    """--set, --seed, --integrator, --contact, --fidelity, --tolerance and --size as scene
+    overrides."""
     ov = list(args.overrides)
     if args.seed is not None:
         ov.append(f"simulation.seed={args.seed}")
     if args.integrator is not None:
         ov.append(f"simulation.integrator={args.integrator}")
+    if getattr(args, "contact", None) is not None:
+        ov.append(f"simulation.contact={args.contact}")
     return ov + fidelity_overrides(args)
 
 
@@ -350,6 +353,10 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         )
     timers.encode += time.perf_counter() - t0
     notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
+    if sim.system.contact is not None:
+        from pipeline.physics.contact import contact_summary
+
+        notes.append(contact_summary(sim.system.contact))
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
 
 

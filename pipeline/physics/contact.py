@@ -81,6 +81,19 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                          np.zeros(4), stats)
 
 
+def contact_summary(c: RobustContact) -> str:
+    """One line on what the robust contact did over the run so far."""
+    s = c.stats
+    steps = max(s[6], 1.0)
+    gap = "none closer than the thickness" if not np.isfinite(s[5]) else f"{s[5]:.2f} x thickness"
+    line = (f"robust contact: {s[0] / steps:.0f} pairs tested a step, {s[1]:.0f} proximity "
+            f"pushes, {s[2]:.0f} CCD stops, {s[3]:.0f} points held by the fail-safe; "
+            f"smallest gap found: {gap}")
+    if s[4] > 0:
+        line += f"; {s[4]:.0f} pairs met with no point free to move (pins forcing them)"
+    return line
+
+
 @njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
 def _p(x, i):
     return (x[0, i], x[1, i], x[2, i])
@@ -245,7 +258,14 @@ def _pair(x0, x1, c, mode, ids):
     i0, i1, i2, i3 = ids[0], ids[1], ids[2], ids[3]
     kind = ids[4]
     tol = h * TOLERANCE
-    if kind == 0:
+    # no impact is possible where the pair's swept boxes are apart, or where it starts
+    # further apart than its points can close in the step (each moves at most `reach`):
+    # the cubic only for the others
+    if _apart(x0, x1, ids, tol):
+        t = -1.0
+    elif _start_distance(x0, ids) > 2.0 * _reach(x0, x1, ids) + tol:
+        t = -1.0
+    elif kind == 0:
         t = point_triangle_impact(_p(x0, i0), _p(x0, i1), _p(x0, i2), _p(x0, i3),
                                   _p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3), tol, c.roots)
     else:
@@ -270,13 +290,13 @@ def _pair(x0, x1, c, mode, ids):
     if _rest_close(c, ids):
         return 0
     if mode == 2:
-        free = 0
+        movable = 0
         for i in (i0, i1, i2, i3):
-            if c.inv_mass[i] > 0.0 and c.frozen[i] == 0:
+            if c.inv_mass[i] > 0.0:
+                movable += 1
                 c.frozen[i] = 1
-                free += 1
-        if free == 0:
-            c.stats[4] += 1.0
+        if movable == 0:
+            c.stats[4] += 1.0  # pins moving into each other
         return 1
     xt = np.empty((3, 4))
     for j in range(4):
@@ -301,6 +321,44 @@ def _pair(x0, x1, c, mode, ids):
     c.stats[2] += 1.0
     _respond(x0, x1, c, ids, weights, normal, target - sep, False)
     return 1
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _apart(x0, x1, ids, tol):
+    """Whether the swept boxes of the pair's two primitives are more than tol apart."""
+    first = 1 if ids[4] == 0 else 2  # point | triangle, or edge | edge
+    for a in range(3):
+        lo1 = hi1 = x0[a, ids[0]]
+        lo2 = hi2 = x0[a, ids[first]]
+        for j in range(4):
+            i = ids[j]
+            lo, hi = min(x0[a, i], x1[a, i]), max(x0[a, i], x1[a, i])
+            if j < first:
+                lo1, hi1 = min(lo1, lo), max(hi1, hi)
+            else:
+                lo2, hi2 = min(lo2, lo), max(hi2, hi)
+        if lo1 > hi2 + tol or lo2 > hi1 + tol:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _reach(x0, x1, ids):
+    """The longest move of the pair's points in the step."""
+    reach = 0.0
+    for j in range(4):
+        i = ids[j]
+        reach = max(reach, (x1[0, i] - x0[0, i]) ** 2 + (x1[1, i] - x0[1, i]) ** 2
+                    + (x1[2, i] - x0[2, i]) ** 2)
+    return math.sqrt(reach)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _start_distance(x0, ids):
+    if ids[4] == 0:
+        return point_triangle_distance(_p(x0, ids[0]), _p(x0, ids[1]), _p(x0, ids[2]),
+                                       _p(x0, ids[3]))[0]
+    return edge_edge_distance(_p(x0, ids[0]), _p(x0, ids[1]), _p(x0, ids[2]), _p(x0, ids[3]))[0]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
