@@ -29,7 +29,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from clothjit import njit
+from numba.core import types
+
+from clothjit import KernelPointer, njit
 
 from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
 
@@ -58,6 +60,9 @@ class RobustContact(NamedTuple):
     entries: np.ndarray  # (cap,) int64 scratch of the hash
     roots: np.ndarray  # (4,) scratch of the cubic's roots
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
+    # _visit through a pointer: compiled once, not again inside robust_contact (a first use
+    # of robust contact compiled 12 s with it linked there); None in the params it is handed
+    visit: KernelPointer | None = None
 
 
 def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
@@ -73,12 +78,15 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     inv = np.where(pinned != 0, 0.0, 1.0 / mass)
     stats = np.zeros(STATS)
     stats[5] = math.inf
-    return RobustContact(float(thickness), float(friction), tris, edges,
-                         np.ascontiguousarray(rest, dtype=np.float64), inv,
-                         np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
-                         np.zeros((6, max(len(tris), len(edges)))),
-                         np.zeros(size + 1, np.int64), np.zeros(16 * size, np.int64),
-                         np.zeros(4), stats)
+    c = RobustContact(float(thickness), float(friction), tris, edges,
+                      np.ascontiguousarray(rest, dtype=np.float64), inv,
+                      np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
+                      np.zeros((6, max(len(tris), len(edges)))),
+                      np.zeros(size + 1, np.int64), np.zeros(16 * size, np.int64),
+                      np.zeros(4), stats)
+    field = types.float64[:, ::1]
+    return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
+                                          types.int64))
 
 
 def contact_summary(c: RobustContact) -> str:
@@ -179,7 +187,7 @@ def _rest_close(c, ids):
     return d < c.thickness
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def _visit(x0, x1, c, mode, cell):
     """Visit every candidate pair once: mode 0 CCD responses, else proximity at x1; 1 CCD
     responses only; 2 CCD detection for the fail-safe (freezing). Returns the pairs acted
@@ -189,6 +197,7 @@ def _visit(x0, x1, c, mode, cell):
     n = x0.shape[1]
     acted = 0
     h = c.thickness
+
     margin = h if mode == 0 else h * TOLERANCE
     # point-triangle: hash the triangles, query each point's swept box (cells doubled
     # until the entries fit)
@@ -445,7 +454,7 @@ def _cell(x0, x1, c):
     return _boxes(x0, x1, c.triangles, c.thickness, c.box)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", pointer=True)
 def robust_contact(x, x0, c):
     """The robust self-contact of one step from x0 to x (3, N), in place (see above)."""
     c.stats[6] += 1.0
@@ -453,20 +462,21 @@ def robust_contact(x, x0, c):
         for i in range(x.shape[1]):
             c.start[a, i] = x0[a, i]
     start = c.start
-    cell = _cell(start, x, c)
+    visit, inner = c.visit, RobustContact(*c[:-1], None)
+    cell = _cell(start, x, inner)
     # one visit for both: CCD where a pair meets within the step, else proximity
-    if _visit(start, x, c, 0, cell) == 0:
+    if visit(start, x, inner, 0, cell) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
-        if _visit(start, x, c, 1, _cell(start, x, c)) == 0:
+        if visit(start, x, inner, 1, _cell(start, x, inner)) == 0:
             return
         _apply(x, c)
     c.frozen[:] = 0
     while True:
         before = c.frozen.sum()
-        if _visit(start, x, c, 2, _cell(start, x, c)) == 0:
+        if visit(start, x, inner, 2, _cell(start, x, inner)) == 0:
             break
         after = c.frozen.sum()
         for i in range(x.shape[1]):

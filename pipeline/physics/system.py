@@ -58,6 +58,7 @@ class StepKernels(NamedTuple):
     self_collide: KernelPointer | None  # self_collision.self_collide; absent or None: off
     wind: KernelPointer | None  # wind.add_wind_force; absent or None: no wind
     reach: KernelPointer  # reach.reach_check (linked, it was a sixth of every stepping kernel)
+    contact: KernelPointer | None = None  # contact.robust_contact; None: the course contact
 
 
 class System(NamedTuple):
@@ -201,7 +202,9 @@ def step_kernels(s: System) -> StepKernels:
         wind=None if s.wind is None else KernelPointer(
             add_mesh_wind_force if mesh else add_wind_force, (field, field, 0.0, s.wind, field),
             present=s.wind.on),
-        reach=KernelPointer(reach_check, (field, s.reach, s.colliders.active, s.thickness)))
+        reach=KernelPointer(reach_check, (field, s.reach, s.colliders.active, s.thickness)),
+        contact=None if s.contact is None else KernelPointer(robust_contact,
+                                                             (field, field, s.contact)))
 
 
 #: integrators that step a mesh cloth (the others' kernels are written for the grid)
@@ -436,13 +439,13 @@ def position_passes(x, last, system, t_start):
         k.stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    _contact_pass(x, last, s.contact)
+    _contact_pass(x, last, s.contact, k.contact)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _contact_pass(x, x0, contact):
-    if contact is not None:  # None: numba prunes the pass (the course contact)
-        robust_contact(x, x0, contact)
+def _contact_pass(x, x0, contact, robust):
+    if robust is not None:  # None: numba prunes the pass (the course contact)
+        robust(x, x0, contact)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)

@@ -152,6 +152,8 @@ COMPILE_SECONDS = {
     "pipeline.physics.mesh_forces:mesh_fem_diagonal": 1.0,
     "pipeline.physics.mesh_xpbd:solve_mesh_springs": 0.6,
     "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
+    "pipeline.physics.contact:robust_contact": 2.0,
+    "pipeline.physics.contact:_visit": 4.0,
 }
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
@@ -225,7 +227,8 @@ def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
     (System.kernels), Provot's pre-pass and its passes, the colliders' point range and loop
     over the points, mesh projection, sweeps and keyframe poses, the wind's band and the
-    FEM's elements (not the absent ones of passes the scene does not use)."""
+    FEM's elements, robust contact's visits (not the absent ones of passes the scene does not
+    use)."""
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
                 *_table_pointers(system.colliders)]
@@ -234,6 +237,8 @@ def kernel_pointers(system) -> list:
     if isinstance(system.fem, FemParams):  # absent for the classic grid; a mesh's (MeshFem)
         # has no element pointers
         pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]
+    if system.contact is not None:  # robust contact's pair visits
+        pointers.append(system.contact.visit)
     return [p for p in pointers if p is not None and p.present]
 
 
