@@ -96,7 +96,8 @@ ALL_TABLES = [base + list(kinds) + poses
 LOOPS = [(["pipeline.physics.colliders:_collide_serially"], ["pipeline.physics.constraints:_mark_serially"]),
          (["pipeline.physics.colliders:_collide_in_chunks"], ["pipeline.physics.constraints:_mark_in_chunks"])]
 WINDS = [[], ["pipeline.physics.wind:add_wind_force", "pipeline.physics.wind:_band"]]
-SELF = [[], ["pipeline.physics.self_collision:self_collide"]]
+SELF = [[], ["pipeline.physics.self_collision:self_collide"],
+        ["pipeline.physics.contact:robust_contact", "pipeline.physics.contact:_visit"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
             "pipeline.physics.integrators.implicit_euler:_update"]
 # the kernels each integrator's State points to, with the classic model and with the FEM
@@ -185,7 +186,8 @@ def test_every_job_of_a_scene_has_an_estimate(tmp_path):
     seen = set()
     larger = ["cloth.num_width_points=80", "cloth.num_height_points=80"]  # the parallel loop
     for path, overrides in [(p, []) for p in sorted(SCENES.glob("*.json"))] + [
-            (SCENES / "sphere.json", larger)] + _mesh_variants(tmp_path):
+            (SCENES / "sphere.json", larger),
+            (SCENES / "selfCollision.json", ["simulation.contact=robust"])] + _mesh_variants(tmp_path):
         scene = load_scene(path, overrides)
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}
