@@ -54,3 +54,22 @@ def test_count_is_per_collider_and_planes_never_count():
     with pytest.warns(StartInsideWarning):
         found = resolve_start_inside(scene, model)
     assert [(type(c).__name__, n) for c, n in found] == [("Sphere", 120), ("Sphere", 11)]
+
+
+def test_a_collider_cutting_through_the_cloths_plane_is_refused_naming_it_and_the_points(
+        tmp_path):
+    """The sphere scene with the sphere centred on the cloth's plane: the points inside go
+    out in the plane (no side to drape to), the springs stay squeezed many times over, so
+    the run is refused with exit status 2 before any output, naming the sphere and points,
+    instead of diverging on the first step with advice about the step."""
+    from pipeline.cli import main
+    from pipeline.scene import SceneError
+
+    scene = load_scene(scene_path("sphere"), ["sphere.0.origin=[0.5, 1.0, 0.5]"])
+    with pytest.raises(SceneError, match=r"300 cloth points start inside the sphere \(origin "
+                                         r"\[0.5, 1, 0.5\], radius 0.2\) \(points \[23, 15\]"):
+        Simulation(scene)
+    out = tmp_path / "x.gif"
+    code = main([str(scene_path("sphere")), "--set", "sphere.0.origin=[0.5,1.0,0.5]",
+                 "--out", str(out)])
+    assert code == 2 and not out.exists()

@@ -26,7 +26,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from pipeline.scene import Box, MeshCollider, Scene, Sphere
+from pipeline.scene import Box, MeshCollider, Scene, SceneError, Sphere
 
 from .colliders import ColliderTable, collide_all, pack_colliders
 from .model import ClothModel
@@ -69,6 +69,8 @@ def project_out(x: np.ndarray, pinned: np.ndarray, table: ColliderTable,
 
 RELAX_STRAIN = 0.05  # largest relative spring strain left by the relaxation
 RELAX_ITERATIONS = 5000  # at most
+# beyond this strain left after the relaxation the first step throws the cloth apart: refused
+UNRESOLVED_STRAIN = 0.5
 
 
 def resolve_start_inside(scene: Scene, model: ClothModel) -> list[tuple[object, int]]:
@@ -80,13 +82,21 @@ def resolve_start_inside(scene: Scene, model: ClothModel) -> list[tuple[object, 
     for collider in scene.colliders:
         if not collider.keyframes and clearance(collider, points) > 0.0:
             continue  # no point can be inside: skip the projection (and its compilation)
-        count = int(project_out(model.x0.copy(), model.pinned,
-                                still_table([collider], model.n)).sum())
-        if count:
-            found.append((collider, count))
+        inside = project_out(model.x0.copy(), model.pinned, still_table([collider], model.n))
+        if inside.any():
+            found.append((collider, int(inside.sum()), np.nonzero(inside)[0]))
     if not found:
         return found
-    _relax(model, still_table(scene.colliders, model.n))
+    strain = _relax(model, still_table(scene.colliders, model.n))
+    if strain > UNRESOLVED_STRAIN:
+        collider, count, which = found[0]
+        raise SceneError(
+            f"{scene.source or 'scene'}: {count} cloth point{'s' * (count != 1)} start inside "
+            f"the {describe(collider)} ({_points(model, which)}), and the cloth cannot be "
+            f"moved out around it: its springs would stay stretched or squeezed by "
+            f"{100 * strain:.0f} % (the collider cuts through the cloth's plane); move the "
+            "collider or the cloth so that they do not overlap at t = 0")
+    found = [(collider, count) for collider, count, _ in found]
     for collider, count in found:
         warnings.warn(f"{count} cloth point{'s' * (count != 1)} started inside the "
                       f"{describe(collider)}: the cloth was moved out around it, at rest, "
@@ -94,8 +104,20 @@ def resolve_start_inside(scene: Scene, model: ClothModel) -> list[tuple[object, 
     return found
 
 
-def _relax(model: ClothModel, table: ColliderTable) -> None:
-    """Jacobi position-based relaxation of model.x0 (see the module docstring)."""
+def _points(model: ClothModel, which: np.ndarray, shown: int = 4) -> str:
+    """A few of the points `which` as the scene names them: [x_index, y_index] on the grid,
+    vertex numbers on a mesh cloth."""
+    if model.mesh is None:
+        names = [f"[{p % model.nw}, {p // model.nw}]" for p in which[:shown]]
+    else:
+        names = [str(p) for p in which[:shown]]
+    more = f" and {len(which) - shown} more" if len(which) > shown else ""
+    return "points " + ", ".join(names) + more
+
+
+def _relax(model: ClothModel, table: ColliderTable) -> float:
+    """Jacobi position-based relaxation of model.x0 (see the module docstring); returns
+    the largest spring strain left."""
     on = model.spring_enabled
     a, b, rest = model.spring_a[on], model.spring_b[on], model.spring_rest[on]
     x, n = model.x0, model.n
@@ -107,9 +129,11 @@ def _relax(model: ClothModel, table: ColliderTable) -> None:
         length = np.sqrt(np.einsum("ij,ij->j", d, d))
         strain = length / rest - 1.0
         if np.abs(strain).max() <= RELAX_STRAIN:
-            return
+            return float(np.abs(strain).max())
         half = 0.5 * d * (strain / np.maximum(length / rest, 1e-12))  # along d, to rest
         for k in range(3):
             corr = np.bincount(a, half[k], n) - np.bincount(b, half[k], n)
             x[k, free] += (corr / degree)[free]
     project_out(x, model.pinned, table)
+    d = x[:, b] - x[:, a]
+    return float(np.abs(np.sqrt(np.einsum("ij,ij->j", d, d)) / rest - 1.0).max())
