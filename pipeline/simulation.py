@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 
 from clothjit import LOOK_EVERY, adjust_threads
-from pipeline.physics.errors import DivergenceError, SelfCollisionWarning, StabilityWarning
+from pipeline.physics.errors import (DivergenceError, SelfCollisionWarning, StabilityWarning,
+                                     StartTangledWarning)
 from pipeline.physics.integrators import integrator_module
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
@@ -40,6 +41,29 @@ def _warn_short_edges(scene: Scene, model: ClothModel) -> None:
             f"2 x cloth.thickness ({2.0 * scene.cloth.thickness:g} m; the shortest "
             f"{shortest:.3g} m): self-collision pushes their ends apart; use a smaller "
             "cloth.thickness or a coarser mesh", SelfCollisionWarning, stacklevel=3)
+
+
+def _warn_start_tangled(model: ClothModel, contact) -> None:
+    """Under robust contact, a cloth that starts crossing itself: say how much and where
+    (robust contact keeps new crossings from forming; it does not undo these)."""
+    from pipeline.physics.contact import tangles
+
+    found = np.zeros((3, 2), np.int64)
+    count = tangles(model.x0, contact, found)
+    if count == 0:
+        return
+
+    def name(p: int) -> str:
+        return str(p) if model.mesh is not None else f"[{p % model.nw}, {p // model.nw}]"
+
+    e, t = found[0]
+    edge = " and ".join(name(p) for p in contact.edges[e])
+    tri = ", ".join(name(p) for p in contact.triangles[t])
+    warnings.warn(
+        f"the cloth starts crossing itself: {count} edge-triangle crossing"
+        f"{'s' * (count != 1)} at t = 0 (e.g. the edge between points {edge} through the "
+        f"triangle of points {tri}); robust contact keeps new crossings from forming but "
+        "does not untangle these", StartTangledWarning, stacklevel=3)
 
 
 class Simulation:
@@ -77,6 +101,8 @@ class Simulation:
         self.system: System = build_system(self.scene, self.model)
         if self.model.mesh is not None and self.system.self_collision:
             _warn_short_edges(self.scene, self.model)
+        if self.system.contact is not None:
+            _warn_start_tangled(self.model, self.system.contact)
         if prepare is not None:
             prepare(self.model, self.system)
         self.omega_max, self.dt_max = stability_limit(self.model)

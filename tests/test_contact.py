@@ -116,3 +116,36 @@ def test_every_integrator_keeps_the_cloth_from_crossing_itself(integrator):
         sim.advance(1)
         if f % 6 == 5:
             assert crossings.edge_triangle_crossings(sim.positions, sim.model.triangles) == 0
+
+
+def test_the_solvers_own_crossing_count_agrees_with_the_checker(rng):
+    """contact.tangles (used to report a cloth that starts tangled) against the independent
+    checker on folded, crumpled states of a grid cloth."""
+    from pipeline.physics.contact import tangles
+
+    sim = Simulation(self_collision_scene("course", 24))
+    c = pack_contact(0.01, 0.0, sim.model.triangles, sim.model.x0, sim.model.point_mass,
+                     sim.model.pinned)
+    out = np.zeros((4, 2), np.int64)
+    seen = 0
+    for _ in range(6):
+        sim.advance(12)
+        x = np.ascontiguousarray(sim.positions.T)
+        expected = crossings.edge_triangle_crossings(sim.positions, sim.model.triangles)
+        assert tangles(x, c, out) == expected
+        seen += expected
+    assert seen > 0
+
+
+def test_a_cloth_that_starts_tangled_is_reported_before_the_run():
+    from pipeline.physics.errors import StartTangledWarning
+
+    scene = self_collision_scene("course", 24)
+    sim = Simulation(scene)
+    sim.advance(45)  # crumpled and crossed by the course's contact
+    tangled = sim.positions.copy()
+    assert crossings.edge_triangle_crossings(tangled, sim.model.triangles) > 0
+    robust = self_collision_scene("robust", 24)
+    with pytest.warns(StartTangledWarning, match=r"edge-triangle crossings? at t = 0 \(e.g. "
+                                                 r"the edge between points \[\d+, \d+\]"):
+        Simulation(robust, initial_positions=tangled)

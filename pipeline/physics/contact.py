@@ -438,6 +438,66 @@ def _respond(x0, x1, c, ids, weights, normal, amount, friction):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _orient(a, b, c, d):
+    """Six times the signed volume of the tetrahedron (a, b, c, d)."""
+    e1 = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
+    e2 = (c[0] - a[0], c[1] - a[1], c[2] - a[2])
+    e3 = (d[0] - a[0], d[1] - a[1], d[2] - a[2])
+    return (e1[0] * (e2[1] * e3[2] - e2[2] * e3[1]) - e1[1] * (e2[0] * e3[2] - e2[2] * e3[0])
+            + e1[2] * (e2[0] * e3[1] - e2[1] * e3[0]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def segment_crosses_triangle(p, q, a, b, c):
+    """Whether the segment p-q passes through the triangle (a, b, c): its ends strictly on
+    opposite sides of the triangle's plane and its line strictly inside the triangle."""
+    sp, sq = _orient(a, b, c, p), _orient(a, b, c, q)
+    if not ((sp > 0.0 and sq < 0.0) or (sp < 0.0 and sq > 0.0)):
+        return False
+    u, v, w = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
+    return (u > 0.0 and v > 0.0 and w > 0.0) or (u < 0.0 and v < 0.0 and w < 0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def tangles(x, c, out):
+    """The edge-triangle crossings of the cloth at x (3, N), pairs sharing no point: their
+    count, the first len(out) written to out as (edge, triangle) rows."""
+    tris, edges = c.triangles, c.edges
+    cell = _boxes(x, x, tris, 0.0, c.box)
+    cell = max(cell, 1e-12)
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries):
+        cell *= 2.0
+    mask = c.bucket_start.shape[0] - 2
+    box = c.box
+    count = 0
+    for e in range(edges.shape[0]):
+        p, q = edges[e, 0], edges[e, 1]
+        lo = (min(x[0, p], x[0, q]), min(x[1, p], x[1, q]), min(x[2, p], x[2, q]))
+        hi = (max(x[0, p], x[0, q]), max(x[1, p], x[1, q]), max(x[2, p], x[2, q]))
+        for ix in range(math.floor(lo[0] / cell), math.floor(hi[0] / cell) + 1):
+            for iy in range(math.floor(lo[1] / cell), math.floor(hi[1] / cell) + 1):
+                for iz in range(math.floor(lo[2] / cell), math.floor(hi[2] / cell) + 1):
+                    b = _hash(ix, iy, iz, mask)
+                    for k in range(c.bucket_start[b], c.bucket_start[b + 1]):
+                        t = c.entries[k]
+                        if (box[0, t] > hi[0] or box[3, t] < lo[0] or box[1, t] > hi[1]
+                                or box[4, t] < lo[1] or box[2, t] > hi[2] or box[5, t] < lo[2]):
+                            continue
+                        if (math.floor(max(box[0, t], lo[0]) / cell) != ix
+                                or math.floor(max(box[1, t], lo[1]) / cell) != iy
+                                or math.floor(max(box[2, t], lo[2]) / cell) != iz):
+                            continue
+                        if _shares(tris[t], p) or _shares(tris[t], q):
+                            continue
+                        if segment_crosses_triangle(_p(x, p), _p(x, q), _p(x, tris[t, 0]),
+                                                    _p(x, tris[t, 1]), _p(x, tris[t, 2])):
+                            if count < out.shape[0]:
+                                out[count, 0], out[count, 1] = e, t
+                            count += 1
+    return count
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _apply(x, c):
     for i in range(x.shape[1]):
         if c.pushes[i] > 0.0:

@@ -27,7 +27,7 @@ from .mesh_forces import mesh_fem_internal_forces, mesh_internal_forces, mesh_li
 from .mesh_model import MeshSprings
 from .pin_motion import PinMotion, move_pins
 from .mesh_wind import MeshWind, add_mesh_wind_force, pack_mesh_wind
-from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel
+from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel, initial_grid
 from .reach import Reach, new_reach, reach_check
 from .self_collision import SelfCollisionScratch, self_collide
 from .wind import WindParams, add_wind_force, max_wind_speed, pack_wind
@@ -239,9 +239,14 @@ def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
     """The packed robust self-contact when the scene asks for it and self-collision is on."""
     if scene.simulation.contact != "robust" or not scene.self_collision:
         return None
-    return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles,
-                        model.x0, model.point_mass,
-                        model.pinned)
+    if model.mesh is None:  # the rest shape, whatever positions the run starts from
+        rest = initial_grid(scene)
+    else:
+        from .cloth_mesh import load_cloth_mesh
+
+        rest = np.ascontiguousarray(np.asarray(load_cloth_mesh(scene.cloth.mesh).points).T)
+    return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles, rest,
+                        model.point_mass, model.pinned)
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
