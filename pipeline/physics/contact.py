@@ -57,7 +57,8 @@ class RobustContact(NamedTuple):
     frozen: np.ndarray  # (N,) uint8 scratch
     box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
     bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash
-    entries: np.ndarray  # (cap,) int64 scratch of the hash
+    entries: np.ndarray  # (cap,) int64 scratch of the hash: the primitives, by bucket
+    entry_box: np.ndarray  # (6, cap) scratch: their boxes in the same order (read in turn)
     roots: np.ndarray  # (4,) scratch of the cubic's roots
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
@@ -82,8 +83,8 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.ascontiguousarray(rest, dtype=np.float64), inv,
                       np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
                       np.zeros((6, max(len(tris), len(edges)))),
-                      np.zeros(size + 1, np.int64), np.zeros(16 * size, np.int64),
-                      np.zeros(4), stats)
+                      np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
+                      np.zeros((6, 4 * size)), np.zeros(4), stats)
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64))
@@ -121,9 +122,10 @@ def _hash(ix, iy, iz, mask):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _boxes(x0, x1, prims, margin, box):
     """box[:, k] = the swept box of primitive k (its points at x0 and x1), grown by margin;
-    returns its largest side."""
-    side = 0.0
+    returns the mean of the boxes' largest sides."""
+    total = 0.0
     for k in range(prims.shape[0]):
+        side = 0.0
         for a in range(3):
             lo, hi = math.inf, -math.inf
             for j in range(prims.shape[1]):
@@ -132,11 +134,12 @@ def _boxes(x0, x1, prims, margin, box):
                 hi = max(hi, x0[a, i], x1[a, i])
             box[a, k], box[3 + a, k] = lo - margin, hi + margin
             side = max(side, hi - lo + 2.0 * margin)
-    return side
+        total += side
+    return total / max(prims.shape[0], 1)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _build(box, count, cell, bucket_start, entries):
+def _build(box, count, cell, bucket_start, entries, entry_box):
     """Hash `count` boxes into cells of side `cell`; False if the entries do not fit."""
     size = bucket_start.shape[0] - 1
     mask = size - 1
@@ -163,6 +166,8 @@ def _build(box, count, cell, bucket_start, entries):
                 for iz in range(lo[2], hi[2] + 1):
                     b = _hash(ix, iy, iz, mask)
                     entries[fill[b]] = k
+                    for a in range(6):
+                        entry_box[a, fill[b]] = box[a, k]
                     fill[b] += 1
     return True
 
@@ -202,10 +207,11 @@ def _visit(x0, x1, c, mode, cell):
     # point-triangle: hash the triangles, query each point's swept box (cells doubled
     # until the entries fit)
     _boxes(x0, x1, tris, margin, c.box)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries):
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
         cell *= 2.0
     mask = c.bucket_start.shape[0] - 2
     ids = np.zeros(5, np.int64)
+    eb = c.entry_box
     for p in range(n):
         plo = (min(x0[0, p], x1[0, p]), min(x0[1, p], x1[1, p]), min(x0[2, p], x1[2, p]))
         phi = (max(x0[0, p], x1[0, p]), max(x0[1, p], x1[1, p]), max(x0[2, p], x1[2, p]))
@@ -214,42 +220,41 @@ def _visit(x0, x1, c, mode, cell):
                 for iz in range(math.floor(plo[2] / cell), math.floor(phi[2] / cell) + 1):
                     b = _hash(ix, iy, iz, mask)
                     for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
-                        t = c.entries[e]
-                        box = c.box
-                        if (box[0, t] > phi[0] or box[3, t] < plo[0] or box[1, t] > phi[1]
-                                or box[4, t] < plo[1] or box[2, t] > phi[2] or box[5, t] < plo[2]):
+                        if (eb[0, e] > phi[0] or eb[3, e] < plo[0] or eb[1, e] > phi[1]
+                                or eb[4, e] < plo[1] or eb[2, e] > phi[2] or eb[5, e] < plo[2]):
                             continue
                         # the canonical cell: that of the larger of the two lower corners
-                        if (math.floor(max(box[0, t], plo[0]) / cell) != ix
-                                or math.floor(max(box[1, t], plo[1]) / cell) != iy
-                                or math.floor(max(box[2, t], plo[2]) / cell) != iz):
+                        if (math.floor(max(eb[0, e], plo[0]) / cell) != ix
+                                or math.floor(max(eb[1, e], plo[1]) / cell) != iy
+                                or math.floor(max(eb[2, e], plo[2]) / cell) != iz):
                             continue
+                        t = c.entries[e]
                         if _shares(tris[t], p):
                             continue
                         ids[0], ids[1], ids[2], ids[3], ids[4] = p, tris[t, 0], tris[t, 1], tris[t, 2], 0
                         acted += _pair(x0, x1, c, mode, ids)
     # edge-edge: hash the edges, query each edge's swept box against later edges
     _boxes(x0, x1, edges, 0.5 * margin, c.box)
-    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.entries):
+    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
         cell *= 2.0
     box = c.box
     for e1 in range(edges.shape[0]):
         a, b2 = edges[e1, 0], edges[e1, 1]
-        for ix in range(math.floor(box[0, e1] / cell), math.floor(box[3, e1] / cell) + 1):
-            for iy in range(math.floor(box[1, e1] / cell), math.floor(box[4, e1] / cell) + 1):
-                for iz in range(math.floor(box[2, e1] / cell), math.floor(box[5, e1] / cell) + 1):
+        lo0, lo1, lo2, hi0, hi1, hi2 = box[0, e1], box[1, e1], box[2, e1], box[3, e1], box[4, e1], box[5, e1]
+        for ix in range(math.floor(lo0 / cell), math.floor(hi0 / cell) + 1):
+            for iy in range(math.floor(lo1 / cell), math.floor(hi1 / cell) + 1):
+                for iz in range(math.floor(lo2 / cell), math.floor(hi2 / cell) + 1):
                     bk = _hash(ix, iy, iz, mask)
                     for e in range(c.bucket_start[bk], c.bucket_start[bk + 1]):
+                        if (eb[0, e] > hi0 or eb[3, e] < lo0 or eb[1, e] > hi1
+                                or eb[4, e] < lo1 or eb[2, e] > hi2 or eb[5, e] < lo2):
+                            continue
                         e2 = c.entries[e]
                         if e2 <= e1:
                             continue
-                        if (box[0, e2] > box[3, e1] or box[3, e2] < box[0, e1]
-                                or box[1, e2] > box[4, e1] or box[4, e2] < box[1, e1]
-                                or box[2, e2] > box[5, e1] or box[5, e2] < box[2, e1]):
-                            continue
-                        if (math.floor(max(box[0, e1], box[0, e2]) / cell) != ix
-                                or math.floor(max(box[1, e1], box[1, e2]) / cell) != iy
-                                or math.floor(max(box[2, e1], box[2, e2]) / cell) != iz):
+                        if (math.floor(max(lo0, eb[0, e]) / cell) != ix
+                                or math.floor(max(lo1, eb[1, e]) / cell) != iy
+                                or math.floor(max(lo2, eb[2, e]) / cell) != iz):
                             continue
                         c2, d2 = edges[e2, 0], edges[e2, 1]
                         if a == c2 or a == d2 or b2 == c2 or b2 == d2:
@@ -259,7 +264,7 @@ def _visit(x0, x1, c, mode, cell):
     return acted
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _pair(x0, x1, c, mode, ids):
     """One candidate pair (ids: 4 points and the kind, 0 point-triangle, 1 edge-edge)."""
     h = c.thickness
@@ -270,9 +275,10 @@ def _pair(x0, x1, c, mode, ids):
     # no impact is possible where the pair's swept boxes are apart, or where it starts
     # further apart than its points can close in the step (each moves at most `reach`):
     # the cubic only for the others
-    if _apart(x0, x1, ids, tol):
+    reach = _reach(x0, x1, ids)
+    if _apart(x0, x1, ids, tol) or _lower_bound(x0, ids) > 2.0 * reach + tol:
         t = -1.0
-    elif _start_distance(x0, ids) > 2.0 * _reach(x0, x1, ids) + tol:
+    elif _start_distance(x0, ids) > 2.0 * reach + tol:
         t = -1.0
     elif kind == 0:
         t = point_triangle_impact(_p(x0, i0), _p(x0, i1), _p(x0, i2), _p(x0, i3),
@@ -284,6 +290,8 @@ def _pair(x0, x1, c, mode, ids):
         if mode != 0:
             return 0
         # no impact: proximity at the end of the step
+        if _lower_bound(x1, ids) >= h:
+            return 0
         if kind == 0:
             d, u, v, w = point_triangle_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
             weights = (1.0, -u, -v, -w)
@@ -349,6 +357,32 @@ def _apart(x0, x1, ids, tol):
         if lo1 > hi2 + tol or lo2 > hi1 + tol:
             return True
     return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _lower_bound(x, ids):
+    """A cheap lower bound of the pair's distance at x: between bounding spheres (the
+    triangle's about its centroid, each edge's about its middle)."""
+    if ids[4] == 0:
+        cx = (x[0, ids[1]] + x[0, ids[2]] + x[0, ids[3]]) / 3.0
+        cy = (x[1, ids[1]] + x[1, ids[2]] + x[1, ids[3]]) / 3.0
+        cz = (x[2, ids[1]] + x[2, ids[2]] + x[2, ids[3]]) / 3.0
+        r = 0.0
+        for j in range(1, 4):
+            i = ids[j]
+            r = max(r, (x[0, i] - cx) ** 2 + (x[1, i] - cy) ** 2 + (x[2, i] - cz) ** 2)
+        d = math.sqrt((x[0, ids[0]] - cx) ** 2 + (x[1, ids[0]] - cy) ** 2
+                      + (x[2, ids[0]] - cz) ** 2)
+        return d - math.sqrt(r)
+    m = (0.5 * (x[0, ids[0]] + x[0, ids[1]]), 0.5 * (x[1, ids[0]] + x[1, ids[1]]),
+         0.5 * (x[2, ids[0]] + x[2, ids[1]]))
+    n = (0.5 * (x[0, ids[2]] + x[0, ids[3]]), 0.5 * (x[1, ids[2]] + x[1, ids[3]]),
+         0.5 * (x[2, ids[2]] + x[2, ids[3]]))
+    r1 = 0.5 * math.sqrt((x[0, ids[1]] - x[0, ids[0]]) ** 2 + (x[1, ids[1]] - x[1, ids[0]]) ** 2
+                         + (x[2, ids[1]] - x[2, ids[0]]) ** 2)
+    r2 = 0.5 * math.sqrt((x[0, ids[3]] - x[0, ids[2]]) ** 2 + (x[1, ids[3]] - x[1, ids[2]]) ** 2
+                         + (x[2, ids[3]] - x[2, ids[2]]) ** 2)
+    return math.sqrt((m[0] - n[0]) ** 2 + (m[1] - n[1]) ** 2 + (m[2] - n[2]) ** 2) - r1 - r2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -465,7 +499,7 @@ def tangles(x, c, out):
     tris, edges = c.triangles, c.edges
     cell = _boxes(x, x, tris, 0.0, c.box)
     cell = max(cell, 1e-12)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries):
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
         cell *= 2.0
     mask = c.bucket_start.shape[0] - 2
     box = c.box
@@ -509,8 +543,8 @@ def _apply(x, c):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _cell(x0, x1, c):
-    """Cells as large as the longest swept box side of any triangle (at least two mean
-    edges), so that a primitive covers at most 2 x 2 x 2 cells."""
+    """Cells as large as the triangles' swept boxes on average (their largest sides, with
+    the thickness): a typical primitive covers up to 2 x 2 x 2 cells, a fast one more."""
     return _boxes(x0, x1, c.triangles, c.thickness, c.box)
 
 
