@@ -127,6 +127,32 @@ def _mark_after(r, p, d, offsets, exist_bits, mask):
             mask[s] |= exist_bits[s] & (np.uint8(1) << np.uint8(e))
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def shorten(x, p, q, dx, dy, dz, length, lim, pa, pb):
+    """Shorten the spring p-q (q - p = (dx, dy, dz), of `length` > lim) to lim along its
+    own direction: half to each end, all to the free end if the other (pa, pb) is pinned.
+    Both ends pinned: the caller does not call."""
+    s = length - lim
+    cx = (dx / length) * s
+    cy = (dy / length) * s
+    cz = (dz / length) * s
+    if not pa and not pb:
+        x[0, p] += 0.5 * cx
+        x[1, p] += 0.5 * cy
+        x[2, p] += 0.5 * cz
+        x[0, q] -= 0.5 * cx
+        x[1, q] -= 0.5 * cy
+        x[2, q] -= 0.5 * cz
+    elif pa:
+        x[0, q] -= cx
+        x[1, q] -= cy
+        x[2, q] -= cz
+    else:
+        x[0, p] += cx
+        x[1, p] += cy
+        x[2, p] += cz
+
+
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Shorten every spring longer than `limit` (= 1.1 rest) to `limit`, in list order.
@@ -158,25 +184,7 @@ def limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
             pb = pinned[q] != 0
             if not length > lim or (pa and pb):
                 continue
-            s = length - lim
-            cx = (dx / length) * s
-            cy = (dy / length) * s
-            cz = (dz / length) * s
-            if not pa and not pb:
-                x[0, p] += 0.5 * cx
-                x[1, p] += 0.5 * cy
-                x[2, p] += 0.5 * cz
-                x[0, q] -= 0.5 * cx
-                x[1, q] -= 0.5 * cy
-                x[2, q] -= 0.5 * cz
-            elif pa:
-                x[0, q] -= cx
-                x[1, q] -= cy
-                x[2, q] -= cz
-            else:
-                x[0, p] += cx
-                x[1, p] += cy
-                x[2, p] += cz
+            shorten(x, p, q, dx, dy, dz, length, lim, pa, pb)
             if not pa:
                 _mark_after(p, p, d, offsets, exist_bits, mask)
             if not pb:

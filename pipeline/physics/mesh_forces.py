@@ -16,6 +16,7 @@ from clothjit import njit, prange
 
 from .fem import (_comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_diagonal,
                   _membrane_hessian, _membrane_stress)
+from .constraints import shorten
 from .forces import CHUNKS, _chunk
 
 
@@ -81,6 +82,18 @@ def mesh_internal_forces(x, fem, springs, mass, gravity, spring_force, passes, f
     mesh_spring_forces(x, springs, mass, gravity, spring_force[0], f)
 
 
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _row_sum(rows, start, slot, p, fx, fy, fz):
+    """(fx, fy, fz) plus the element rows of point p, in incidence order (unsigned
+    indices: no wraparound test)."""
+    for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
+        r = np.uint64(slot[j])
+        fx += rows[r, 0]
+        fy += rows[r, 1]
+        fz += rows[r, 2]
+    return fx, fy, fz
+
+
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def mesh_fem_forces(x, fem, mass, gravity, f):
     """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem)."""
@@ -117,12 +130,8 @@ def mesh_fem_forces(x, fem, mass, gravity, f):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
             m = mass[p]
-            fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
-            for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
-                r = np.uint64(slot[j])
-                fx += out[r, 0]
-                fy += out[r, 1]
-                fz += out[r, 2]
+            fx, fy, fz = _row_sum(out, start, slot, p, m * gravity[0], m * gravity[1],
+                                  m * gravity[2])
             f[0, p], f[1, p], f[2, p] = fx, fy, fz
 
 
@@ -194,27 +203,8 @@ def mesh_limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scrat
         dz = x[2, q] - x[2, p]
         length = np.sqrt(dx * dx + dy * dy + dz * dz)
         lim = lim_row[s]
-        if not length > lim:
-            continue
-        k = length - lim
-        cx = (dx / length) * k
-        cy = (dy / length) * k
-        cz = (dz / length) * k
-        if not pa and not pb:
-            x[0, p] += 0.5 * cx
-            x[1, p] += 0.5 * cy
-            x[2, p] += 0.5 * cz
-            x[0, q] -= 0.5 * cx
-            x[1, q] -= 0.5 * cy
-            x[2, q] -= 0.5 * cz
-        elif pa:
-            x[0, q] -= cx
-            x[1, q] -= cy
-            x[2, q] -= cz
-        else:
-            x[0, p] += cx
-            x[1, p] += cy
-            x[2, p] += cz
+        if length > lim:
+            shorten(x, p, q, dx, dy, dz, length, lim, pa, pb)
 
 
 # --- the force Jacobian K = df/dx for implicit Euler (forces.JacobianKernels) --------------
@@ -340,12 +330,7 @@ def mesh_fem_product(x, y, fem, out, diagonal):
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
-            fx = fy = fz = 0.0
-            for j in range(start[p], start[p + 1]):
-                r = slot[j]
-                fx += rows[r, 0]
-                fy += rows[r, 1]
-                fz += rows[r, 2]
+            fx, fy, fz = _row_sum(rows, start, slot, p, 0.0, 0.0, 0.0)
             out[0, p], out[1, p], out[2, p] = fx, fy, fz
 
 

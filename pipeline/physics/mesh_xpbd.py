@@ -40,6 +40,7 @@ def multipliers(springs, fem, classic: bool) -> np.ndarray:
     return np.zeros(3 * len(fem.triangles) + len(fem.hinges))
 
 
+# the point helpers of both models' sweeps (integrators.xpbd's too)
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _inverse_mass(pinned, mass, p):
     return 0.0 if pinned[p] else 1.0 / mass[p]

@@ -36,7 +36,8 @@ from ..fem import (HINGE_KINDS, HINGE_VERTICES, TRIANGLE_KINDS, TRIANGLE_VERTICE
                    _deformation, _dot, _hinge, _hinge_gradient, _scale)
 from ..forces import external_force
 from ..mesh_model import MeshSprings
-from ..mesh_xpbd import multipliers, solve_mesh_fem, solve_mesh_springs
+from ..mesh_xpbd import (_inverse_mass, _move, _point, multipliers, solve_mesh_fem,
+                         solve_mesh_springs)
 from ..system import System, position_passes, step_guard
 from .euler import VelocityState
 
@@ -106,24 +107,6 @@ def solve_springs(x, lam, pinned, mass, springs, fem, dt2, iterations):
                 x[0, q] += wq * dl * ux
                 x[1, q] += wq * dl * uy
                 x[2, q] += wq * dl * uz
-
-
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _inverse_mass(pinned, mass, p):
-    return 0.0 if pinned[p] else 1.0 / mass[p]
-
-
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _point(x, p):
-    return (x[0, p], x[1, p], x[2, p])
-
-
-@njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _move(x, p, scale, g):
-    """x_p += scale g."""
-    x[0, p] += scale * g[0]
-    x[1, p] += scale * g[1]
-    x[2, p] += scale * g[2]
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
