@@ -149,3 +149,16 @@ def test_a_cloth_that_starts_tangled_is_reported_before_the_run():
     with pytest.warns(StartTangledWarning, match=r"edge-triangle crossings? at t = 0 \(e.g. "
                                                  r"the edge between points \[\d+, \d+\]"):
         Simulation(robust, initial_positions=tangled)
+
+
+def test_render_plan_and_the_summary_say_what_contact_ran(tmp_path, capsys):
+    from pipeline.cli import main
+
+    assert main(["plan", str(scene_path("selfCollision")), "--contact", "robust"]) == 0
+    assert "self-collision: robust contact on every step" in capsys.readouterr().out
+    out = tmp_path / "x.gif"
+    assert main([str(scene_path("selfCollision")), "--contact", "robust", "--set",
+                 "cloth.num_width_points=12", "--set", "cloth.num_height_points=12",
+                 "--duration", "0.1", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "robust contact:" in err and "pairs tested a step" in err and out.exists()

@@ -20,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
                                  "cost against fidelity exact.")
     p.add_argument("scene", metavar="SCENE.json")
     p.add_argument("--fidelity", choices=("exact", "auto"))
+    p.add_argument("--contact", choices=("course", "robust"))
     p.add_argument("--tolerance", type=positive_float("tolerance"), metavar="PX")
     p.add_argument("--size", type=size_arg, metavar="WxH",
                    help="the image the tolerance is measured in (default: the scene's)")
@@ -37,7 +38,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     from pipeline.scene import load_scene
     from pipeline.simulation import Simulation
 
-    scene = load_scene(args.scene, list(args.overrides) + fidelity_overrides(args))
+    contact = [f"simulation.contact={args.contact}"] if args.contact else []
+    scene = load_scene(args.scene, list(args.overrides) + contact + fidelity_overrides(args))
     plan = Simulation(scene).plan
     if args.json:
         print(json.dumps(plan.as_dict(), indent=1))

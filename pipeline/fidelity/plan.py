@@ -161,7 +161,11 @@ def make_plan(sim) -> Plan:
                       "(checked every step)" if gap > 0 else
                       "touching the cloth at t = 0: on while it can act")
         colliders.append({"name": name, "status": status})
-    if not sim.system.self_collision:
+    if sim.system.contact is not None:
+        self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "
+                          f"kept {scene.cloth.thickness:g} m apart, continuous collision "
+                          "detection and a fail-safe (the cloth never passes through itself)")
+    elif not sim.system.self_collision:
         self_collision = "off" + (" (horizontal cloth)" if s.self_collision == "auto" else "")
     elif auto:
         self_collision = ("on, skipped while no two points can come within 2 x thickness "
