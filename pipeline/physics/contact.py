@@ -36,10 +36,16 @@ from clothjit import KernelPointer, njit
 from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
 
 CCD_ROUNDS = 4
+# the candidate list: every pair within (1 + LIST_MARGIN) h at its making, good while no
+# point has moved LIST_MARGIN h / 2 from there (then no pair outside can have come within h,
+# nor meet on the straight paths of a step inside that range)
+LIST_MARGIN = 1.0
+LISTED_PER_POINT = 64  # room in the list; beyond it, the step visits the hash directly
 IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
 TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
 STATS = 8  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
-#           unresolvable pairs, smallest gap (in thickness, at the step's end), steps
+#           unresolvable pairs, smallest gap (in thickness, at the step's end), steps,
+#           candidate lists made
 
 
 class RobustContact(NamedTuple):
@@ -60,6 +66,10 @@ class RobustContact(NamedTuple):
     entries: np.ndarray  # (cap,) int64 scratch of the hash: the primitives, by bucket
     entry_box: np.ndarray  # (6, cap) scratch: their boxes in the same order (read in turn)
     roots: np.ndarray  # (4,) scratch of the cubic's roots
+    listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
+    listed_gap: np.ndarray  # (cap,) their distance at `anchor`
+    count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list
+    anchor: np.ndarray  # (3, N) the positions the list was made at
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
     # of robust contact compiled 12 s with it linked there); None in the params it is handed
@@ -84,7 +94,10 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
                       np.zeros((6, max(len(tris), len(edges)))),
                       np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
-                      np.zeros((6, 4 * size)), np.zeros(4), stats)
+                      np.zeros((6, 4 * size)), np.zeros(4),
+                      np.zeros((LISTED_PER_POINT * n, 5), np.int64),
+                      np.zeros(LISTED_PER_POINT * n), np.full(1, -1, np.int64),
+                      np.zeros((3, n)), stats)
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64))
@@ -198,12 +211,14 @@ def _visit(x0, x1, c, mode, cell):
     responses only; 2 CCD detection for the fail-safe (freezing). Returns the pairs acted
     on. The triangles' and edges' boxes grow by the margin (h for proximity), the points'
     not: a box pair overlaps where the primitives may be within the margin."""
+    if mode >= 4:
+        return _listed(x0, x1, c, mode - 4, cell)
     tris, edges = c.triangles, c.edges
     n = x0.shape[1]
     acted = 0
     h = c.thickness
 
-    margin = h if mode == 0 else h * TOLERANCE
+    margin = (h if mode == 0 else (1.0 + LIST_MARGIN) * h if mode == 3 else h * TOLERANCE)
     # point-triangle: hash the triangles, query each point's swept box (cells doubled
     # until the entries fit)
     _boxes(x0, x1, tris, margin, c.box)
@@ -232,7 +247,7 @@ def _visit(x0, x1, c, mode, cell):
                         if _shares(tris[t], p):
                             continue
                         ids[0], ids[1], ids[2], ids[3], ids[4] = p, tris[t, 0], tris[t, 1], tris[t, 2], 0
-                        acted += _pair(x0, x1, c, mode, ids)
+                        acted += _collect(x1, c, ids) if mode == 3 else _pair(x0, x1, c, mode, ids)
     # edge-edge: hash the edges, query each edge's swept box against later edges
     _boxes(x0, x1, edges, 0.5 * margin, c.box)
     while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
@@ -260,8 +275,74 @@ def _visit(x0, x1, c, mode, cell):
                         if a == c2 or a == d2 or b2 == c2 or b2 == d2:
                             continue
                         ids[0], ids[1], ids[2], ids[3], ids[4] = a, b2, c2, d2, 1
-                        acted += _pair(x0, x1, c, mode, ids)
+                        acted += _collect(x1, c, ids) if mode == 3 else _pair(x0, x1, c, mode, ids)
     return acted
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _collect(x, c, ids):
+    """List the pair if within (1 + LIST_MARGIN) h at x and not neighbours at rest."""
+    d = _distance(x, ids)
+    if d > (1.0 + LIST_MARGIN) * c.thickness or _rest_close(c, ids):
+        return 0
+    k = c.count[0]
+    if k < 0 or k >= c.listed.shape[0]:
+        c.count[0] = -1  # full: no valid list
+        return 0
+    for j in range(5):
+        c.listed[k, j] = ids[j]
+    c.listed_gap[k] = d
+    c.count[0] = k + 1
+    return 0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _listed(x0, x1, c, mode, drift):
+    """_visit's modes 0-2 over the candidate list: a pair is skipped where its distance at
+    the list's making, less what its points may have moved since (2 drift), leaves it
+    further than h (mode 0) or apart (CCD)."""
+    acted = 0
+    ids = np.zeros(5, np.int64)
+    h = c.thickness
+    reach = (h if mode == 0 else h * TOLERANCE) + 2.0 * drift
+    for k in range(c.count[0]):
+        if c.listed_gap[k] > reach:
+            continue
+        for j in range(5):
+            ids[j] = c.listed[k, j]
+        acted += _pair(x0, x1, c, mode, ids)
+    return acted
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _drift(x0, x1, anchor):
+    """The longest distance of any point at x0 or x1 from the anchor."""
+    worst = 0.0
+    for i in range(anchor.shape[1]):
+        for x in (x0, x1):
+            d = ((x[0, i] - anchor[0, i]) ** 2 + (x[1, i] - anchor[1, i]) ** 2
+                 + (x[2, i] - anchor[2, i]) ** 2)
+            worst = max(worst, d)
+    return math.sqrt(worst)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _round(start, x, c, visit, inner, mode):
+    """One visit of every pair in `mode` (0-2), from the candidate list where it holds (made
+    again where the points have moved too far from where it was made), else the hash."""
+    limit = 0.5 * LIST_MARGIN * c.thickness
+    drift = _drift(start, x, c.anchor) if c.count[0] >= 0 else math.inf
+    if drift > limit:
+        c.count[0] = 0
+        c.stats[7] += 1.0
+        for a in range(3):
+            for i in range(x.shape[1]):
+                c.anchor[a, i] = x[a, i]
+        visit(x, x, inner, 3, _cell(x, x, inner))
+        drift = _drift(start, x, c.anchor)
+    if c.count[0] >= 0 and drift <= limit:
+        return visit(start, x, inner, 4 + mode, drift)
+    return visit(start, x, inner, mode, _cell(start, x, inner))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -272,13 +353,17 @@ def _pair(x0, x1, c, mode, ids):
     i0, i1, i2, i3 = ids[0], ids[1], ids[2], ids[3]
     kind = ids[4]
     tol = h * TOLERANCE
-    # no impact is possible where the pair's swept boxes are apart, or where it starts
-    # further apart than its points can close in the step (each moves at most `reach`):
-    # the cubic only for the others
+    # the distance at the step's end; every point of the pair's paths is within `reach`
+    # of its end, so no impact is possible where that distance exceeds 2 reach: the cubic
+    # only for the others
+    if kind == 0:
+        d, u, v, w = point_triangle_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
+        weights = (1.0, -u, -v, -w)
+    else:
+        d, s, tt = edge_edge_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
+        weights = (1.0 - s, s, -(1.0 - tt), -tt)
     reach = _reach(x0, x1, ids)
-    if _apart(x0, x1, ids, tol) or _lower_bound(x0, ids) > 2.0 * reach + tol:
-        t = -1.0
-    elif _start_distance(x0, ids) > 2.0 * reach + tol:
+    if d > 2.0 * reach + tol or _apart(x0, x1, ids, tol):
         t = -1.0
     elif kind == 0:
         t = point_triangle_impact(_p(x0, i0), _p(x0, i1), _p(x0, i2), _p(x0, i3),
@@ -290,14 +375,6 @@ def _pair(x0, x1, c, mode, ids):
         if mode != 0:
             return 0
         # no impact: proximity at the end of the step
-        if _lower_bound(x1, ids) >= h:
-            return 0
-        if kind == 0:
-            d, u, v, w = point_triangle_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
-            weights = (1.0, -u, -v, -w)
-        else:
-            d, s, tt = edge_edge_distance(_p(x1, i0), _p(x1, i1), _p(x1, i2), _p(x1, i3))
-            weights = (1.0 - s, s, -(1.0 - tt), -tt)
         if d >= h or _rest_close(c, ids):
             return 0
         c.stats[1] += 1.0
@@ -359,32 +436,6 @@ def _apart(x0, x1, ids, tol):
     return False
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _lower_bound(x, ids):
-    """A cheap lower bound of the pair's distance at x: between bounding spheres (the
-    triangle's about its centroid, each edge's about its middle)."""
-    if ids[4] == 0:
-        cx = (x[0, ids[1]] + x[0, ids[2]] + x[0, ids[3]]) / 3.0
-        cy = (x[1, ids[1]] + x[1, ids[2]] + x[1, ids[3]]) / 3.0
-        cz = (x[2, ids[1]] + x[2, ids[2]] + x[2, ids[3]]) / 3.0
-        r = 0.0
-        for j in range(1, 4):
-            i = ids[j]
-            r = max(r, (x[0, i] - cx) ** 2 + (x[1, i] - cy) ** 2 + (x[2, i] - cz) ** 2)
-        d = math.sqrt((x[0, ids[0]] - cx) ** 2 + (x[1, ids[0]] - cy) ** 2
-                      + (x[2, ids[0]] - cz) ** 2)
-        return d - math.sqrt(r)
-    m = (0.5 * (x[0, ids[0]] + x[0, ids[1]]), 0.5 * (x[1, ids[0]] + x[1, ids[1]]),
-         0.5 * (x[2, ids[0]] + x[2, ids[1]]))
-    n = (0.5 * (x[0, ids[2]] + x[0, ids[3]]), 0.5 * (x[1, ids[2]] + x[1, ids[3]]),
-         0.5 * (x[2, ids[2]] + x[2, ids[3]]))
-    r1 = 0.5 * math.sqrt((x[0, ids[1]] - x[0, ids[0]]) ** 2 + (x[1, ids[1]] - x[1, ids[0]]) ** 2
-                         + (x[2, ids[1]] - x[2, ids[0]]) ** 2)
-    r2 = 0.5 * math.sqrt((x[0, ids[3]] - x[0, ids[2]]) ** 2 + (x[1, ids[3]] - x[1, ids[2]]) ** 2
-                         + (x[2, ids[3]] - x[2, ids[2]]) ** 2)
-    return math.sqrt((m[0] - n[0]) ** 2 + (m[1] - n[1]) ** 2 + (m[2] - n[2]) ** 2) - r1 - r2
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _reach(x0, x1, ids):
     """The longest move of the pair's points in the step."""
@@ -397,7 +448,8 @@ def _reach(x0, x1, ids):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _start_distance(x0, ids):
+def _distance(x0, ids):
+    """The pair's distance at x0."""
     if ids[4] == 0:
         return point_triangle_distance(_p(x0, ids[0]), _p(x0, ids[1]), _p(x0, ids[2]),
                                        _p(x0, ids[3]))[0]
@@ -557,20 +609,19 @@ def robust_contact(x, x0, c):
             c.start[a, i] = x0[a, i]
     start = c.start
     visit, inner = c.visit, RobustContact(*c[:-1], None)
-    cell = _cell(start, x, inner)
     # one visit for both: CCD where a pair meets within the step, else proximity
-    if visit(start, x, inner, 0, cell) == 0:
+    if _round(start, x, c, visit, inner, 0) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
-        if visit(start, x, inner, 1, _cell(start, x, inner)) == 0:
+        if _round(start, x, c, visit, inner, 1) == 0:
             return
         _apply(x, c)
     c.frozen[:] = 0
     while True:
         before = c.frozen.sum()
-        if visit(start, x, inner, 2, _cell(start, x, inner)) == 0:
+        if _round(start, x, c, visit, inner, 2) == 0:
             break
         after = c.frozen.sum()
         for i in range(x.shape[1]):
