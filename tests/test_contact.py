@@ -162,3 +162,30 @@ def test_render_plan_and_the_summary_say_what_contact_ran(tmp_path, capsys):
                  "--duration", "0.1", "--out", str(out)]) == 0
     err = capsys.readouterr().err
     assert "robust contact:" in err and "pairs tested a step" in err and out.exists()
+
+
+def test_a_mesh_cloth_dropped_on_another_piece_does_not_pass_through_it(tmp_path):
+    """A mesh of two pieces (pieces "allow"): a square falling onto a held one below it.
+    The course contact lets it through; robust contact keeps it on top."""
+    from test_mesh_cloth import write_obj
+    from test_mesh_model import grid_mesh
+
+    points, tris, corner_uv = grid_mesh(9, 9, 1.0, 1.0)
+    low = np.stack([points[:, 0], np.full(len(points), 0.5), points[:, 1]], 1)
+    high = low + np.array([0.05, 0.08, 0.05])
+    obj = write_obj(tmp_path / "two.obj", np.concatenate([low, high]),
+                    np.concatenate([tris, tris + len(points)]),
+                    np.concatenate([corner_uv, corner_uv]))
+    held = [0, 8, 72, 80]  # the lower square's corners
+    ends = {}
+    for mode in ("course", "robust"):
+        scene = {"cloth": {"mesh": str(obj), "pieces": "allow", "thickness": 0.01,
+                           "damping": 0.2, "density": 1.0, "ks": 1000.0, "pinned": held},
+                 "simulation": {"self_collision": True, "contact": mode}}
+        sim = Simulation(scene)
+        sim.advance(30)
+        ends[mode] = crossings.edge_triangle_crossings(sim.positions, sim.model.triangles)
+        upper = sim.positions[len(points):, 1].mean() - sim.positions[:len(points), 1].mean()
+        ends[mode + " above"] = upper
+    assert ends["robust"] == 0 and ends["robust above"] > 0
+    assert ends["course"] > 0 or ends["course above"] < 0
