@@ -6,21 +6,23 @@ After the integrator and the other position passes have moved the points from x0
 start of the step, free of crossings) to x1, between every point and triangle, and every
 two edges, of the cloth that share no vertex and lie further apart than `thickness` h at
 rest:
-1. proximity: pairs closer than h at x1 are pushed apart to h (inelastic repulsion, Jacobi
-   passes averaged per point), with friction: their relative tangential motion over the
-   step shrinks by at most `friction` times the push;
-2. continuous collision detection (pipeline.physics.ccd) on the straight paths x0 -> x1:
-   each pair that meets within the step is stopped at a small separation along the
-   normal at impact, on the side it came from (rounds of Jacobi passes);
+1. one visit of every pair: one that meets on the straight paths x0 -> x1 (continuous
+   collision detection, pipeline.physics.ccd) is stopped IMPACT_GAP h apart along the
+   normal at impact, on the side it came from; one closer than h at x1 is pushed apart to
+   h (inelastic repulsion), with friction: its relative tangential motion over the step
+   shrinks by at most `friction` times the push. The moves are averaged per point (Jacobi);
+2. if anything moved, rounds of CCD alone until one finds no meeting (CCD_ROUNDS at most);
 3. fail-safe: while any pair still meets, every free point of every such pair goes back
    to x0 (moves no further this step). x0 has no crossing, so this ends, at worst with
    every point back at x0; a pair that meets with none of its points free (pins moving
-   into the cloth) is counted as unresolvable.
+   into each other) is counted as unresolvable.
 
-Pairs are found on a spatial hash of the primitives' swept boxes (rebuilt every round,
-cells as large as the longest swept box side, at least the mean edge), each pair tested
-once, in its canonical cell. Everything is serial and in a fixed order: results are
-bit-for-bit the same on every run and thread count.
+Pairs come from a candidate list of those within (1 + LIST_MARGIN) h, made on a spatial
+hash of the primitives' boxes (cells the size of the triangles' mean swept box, each pair
+found once, in its canonical cell) and made again only when some point has moved
+LIST_MARGIN h / 2 from where it was made; a step that moves further visits the hash
+directly. Everything is serial and in a fixed order: results are bit-for-bit the same on
+every run and thread count.
 """
 from __future__ import annotations
 
