@@ -140,7 +140,7 @@ def task_overhead(client, n: int = 200) -> None:
     for i in range(n // 4):
         client.submit(noop, i, pure=False).result()
     trip = (time.perf_counter() - t0) / (n // 4)
-    print(f"\n## Cost of a task (2 local workers)\n")
+    print("\n## Cost of a task (2 local workers)\n")
     print(f"- {n} empty tasks submitted together: {batch * 1000:.2f} ms per task")
     print(f"- one after the other (submit, wait for the result): {trip * 1000:.2f} ms per task")
 

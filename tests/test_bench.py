@@ -8,9 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-import warnings
 
-import numba
 import numpy as np
 import pytest
 

@@ -148,7 +148,7 @@ def test_the_pilot_chooses_a_coarse_grid_that_stays_within_the_tolerance(sheet):
         assert np.array_equal(got[[0, 56]], reference.positions[[0, 56]])
         assert screen_distance(camera, got, reference.positions) <= 2.0
     text = auto.stepper.summary_text()
-    assert text.startswith(f"auto: grid pilot 29x29/15x15/8x8 over 1 s: ") and (
+    assert text.startswith("auto: grid pilot 29x29/15x15/8x8 over 1 s: ") and (
         f": {choice.chosen[0]}x{choice.chosen[1]}, steps/frame" in text)
 
 

@@ -177,7 +177,7 @@ def test_every_job_of_a_scene_has_an_estimate(tmp_path):
     on first use, in one process)."""
     from pipeline.scene import INTEGRATORS, load_scene
     from pipeline.simulation import cloth_model
-    from pipeline.physics.system import MESH_INTEGRATORS as STEPS_A_MESH, build_system
+    from pipeline.physics.system import build_system
 
     every = [set(listed) for listed in _scenes(ALL_TABLES, LOOPS)
              + _mesh_scenes(ALL_TABLES, LOOPS)]
@@ -193,7 +193,7 @@ def test_every_job_of_a_scene_has_an_estimate(tmp_path):
         names = {job.name for job in warmup.sim_jobs(system)}
         assert {job.name for job in warmup.sim_jobs(system) if job.linked} <= LINKED
         assert names in every, (path.name, overrides)  # a combination above
-        for integrator in INTEGRATORS if scene.cloth.mesh is None else STEPS_A_MESH:
+        for integrator in INTEGRATORS:
             names |= {job.name for job in warmup.integrator_jobs(integrator, system)[1]}
         assert names <= set(warmup.COMPILE_SECONDS), path.name
         seen |= names

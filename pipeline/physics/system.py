@@ -14,7 +14,7 @@ from numba.core import types
 from numba.extending import register_jitable, typeof_impl
 
 from clothjit import KernelPointer, njit
-from pipeline.scene import Scene, SceneError
+from pipeline.scene import Scene
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .contact import RobustContact, pack_contact, robust_contact
@@ -126,8 +126,6 @@ def _typeof_system(system: System, c):
 def build_system(scene: Scene, model: ClothModel) -> System:
     sim = scene.simulation
     mesh = model.mesh
-    if mesh is not None:
-        refuse_for_mesh(scene)
     limit, limit_sq_lo = stretch_limits(model.rest if mesh is None else mesh.springs.rest[None])
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
     either = scene.wind is not None or scene.self_collision  # see StepKernels
@@ -205,19 +203,6 @@ def step_kernels(s: System) -> StepKernels:
         reach=KernelPointer(reach_check, (field, s.reach, s.colliders.active, s.thickness)),
         contact=None if s.contact is None else KernelPointer(robust_contact,
                                                              (field, field, s.contact)))
-
-
-#: integrators that step a mesh cloth (the others' kernels are written for the grid)
-MESH_INTEGRATORS = ("verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
-
-
-def refuse_for_mesh(scene: Scene) -> None:
-    """SceneError for what a mesh cloth cannot run with yet."""
-    file, sim = scene.source or "scene", scene.simulation
-    if sim.integrator not in MESH_INTEGRATORS and sim.fidelity != "auto":
-        raise SceneError(f"{file}: simulation.integrator: {sim.integrator!r} is not available "
-                         f"for a mesh cloth (cloth.mesh) yet; expected one of "
-                         f"{', '.join(MESH_INTEGRATORS)}")
 
 
 def spring_tuple(n: int) -> tuple:
