@@ -318,12 +318,21 @@ def _listed(x0, x1, c, mode, drift):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _drift(x0, x1, anchor):
-    """The longest distance of any point at x0 or x1 from the anchor."""
+    """The longest move of any point at x0 or at x1 from the anchor, less the cloth's mean
+    move at each: a common move changes no distance, and on the straight paths between x0
+    and x1 a point's move less the interpolated mean stays within the larger of the two."""
+    n = anchor.shape[1]
     worst = 0.0
-    for i in range(anchor.shape[1]):
-        for x in (x0, x1):
-            d = ((x[0, i] - anchor[0, i]) ** 2 + (x[1, i] - anchor[1, i]) ** 2
-                 + (x[2, i] - anchor[2, i]) ** 2)
+    for x in (x0, x1):
+        m0 = m1 = m2 = 0.0
+        for i in range(n):
+            m0 += x[0, i] - anchor[0, i]
+            m1 += x[1, i] - anchor[1, i]
+            m2 += x[2, i] - anchor[2, i]
+        m0, m1, m2 = m0 / n, m1 / n, m2 / n
+        for i in range(n):
+            d = ((x[0, i] - anchor[0, i] - m0) ** 2 + (x[1, i] - anchor[1, i] - m1) ** 2
+                 + (x[2, i] - anchor[2, i] - m2) ** 2)
             worst = max(worst, d)
     return math.sqrt(worst)
 
