@@ -123,6 +123,13 @@ def _p(x, i):
     return (x[0, i], x[1, i], x[2, i])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+def _lerp(x0, x1, i, t):
+    """Point i at time t of its straight path from x0 to x1."""
+    return (x0[0, i] + t * (x1[0, i] - x0[0, i]), x0[1, i] + t * (x1[1, i] - x0[1, i]),
+            x0[2, i] + t * (x1[2, i] - x0[2, i]))
+
+
 # --- the spatial hash of swept boxes ---------------------------------------------------------
 
 
@@ -403,16 +410,14 @@ def _pair(x0, x1, c, mode, ids):
         if movable == 0:
             c.stats[4] += 1.0  # pins moving into each other
         return 1
-    xt = np.empty((3, 4))
-    for j in range(4):
-        i = ids[j]
-        for a in range(3):
-            xt[a, j] = x0[a, i] + t * (x1[a, i] - x0[a, i])
+    # the weights of the closest points at the time of impact
+    a0, a1, a2, a3 = (_lerp(x0, x1, i0, t), _lerp(x0, x1, i1, t), _lerp(x0, x1, i2, t),
+                      _lerp(x0, x1, i3, t))
     if kind == 0:
-        _, u, v, w = point_triangle_distance(_p(xt, 0), _p(xt, 1), _p(xt, 2), _p(xt, 3))
+        _, u, v, w = point_triangle_distance(a0, a1, a2, a3)
         weights = (1.0, -u, -v, -w)
     else:
-        _, s, tt = edge_edge_distance(_p(xt, 0), _p(xt, 1), _p(xt, 2), _p(xt, 3))
+        _, s, tt = edge_edge_distance(a0, a1, a2, a3)
         weights = (1.0 - s, s, -(1.0 - tt), -tt)
     normal = _normal(x0, x1, ids, weights, 0.0)
     # the end separation along the normal; stop the pair IMPACT_GAP h apart on its side

@@ -26,6 +26,13 @@ def _at(x, p):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _deformation_of(x, tris, inv, t):
+    """fem._deformation (w_u, w_v) of triangle t at x (3, N)."""
+    return _deformation(_at(x, tris[t, 0]), _at(x, tris[t, 1]), _at(x, tris[t, 2]),
+                        inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _hinge_at(x, hinges, h):
     """fem._hinge of hinge h at x (3, N)."""
     return _hinge(_at(x, hinges[h, 0]), _at(x, hinges[h, 1]), _at(x, hinges[h, 2]),
@@ -105,9 +112,8 @@ def mesh_fem_forces(x, fem, mass, gravity, f):
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n_tri)
         for t in range(lo, hi):
-            i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
             i00, i01, i10, i11 = inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3]
-            wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), i00, i01, i10, i11)
+            wu, wv = _deformation_of(x, tris, inv, t)
             pu, pv = _membrane_stress(wu, wv, area[t] * ks, area[t] * kh)
             g1 = _comb(pu, i00, pv, i01)  # dE/dx1
             g2 = _comb(pu, i10, pv, i11)  # dE/dx2
@@ -162,9 +168,7 @@ def mesh_fem_energy(x, fem):
     tris, area, inv = fem.triangles, fem.tri_area, fem.tri_inv
     energy = 0.0
     for t in range(tris.shape[0]):
-        i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
-        wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), inv[t, 0], inv[t, 1],
-                              inv[t, 2], inv[t, 3])
+        wu, wv = _deformation_of(x, tris, inv, t)
         lu, lv = np.sqrt(_dot(wu, wu)), np.sqrt(_dot(wv, wv))
         shear = _dot(wu, wv)
         energy += 0.5 * area[t] * (fem.k_stretch * ((lu - 1.0) ** 2 + (lv - 1.0) ** 2)
@@ -172,18 +176,6 @@ def mesh_fem_energy(x, fem):
     for h in range(fem.hinges.shape[0]):
         theta = _hinge_at(x, fem.hinges, h)[0]
         energy += fem.k_bend * fem.hinge_factor[h] * (theta - fem.rest_angle[h]) ** 2
-    return energy
-
-
-@njit(cache=True, nogil=True)
-def mesh_spring_energy(x, springs):
-    """Potential energy sum of k (|pa - pb| - rest)^2 / 2 over the springs (J)."""
-    energy = 0.0
-    for s in range(springs.a.shape[0]):
-        p, q = springs.a[s], springs.b[s]
-        d = np.sqrt((x[0, q] - x[0, p]) ** 2 + (x[1, q] - x[1, p]) ** 2
-                    + (x[2, q] - x[2, p]) ** 2)
-        energy += 0.5 * springs.stiffness[s] * (d - springs.rest[s]) ** 2
     return energy
 
 
@@ -294,9 +286,8 @@ def mesh_fem_product(x, y, fem, out, diagonal):
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n_tri)
         for t in range(lo, hi):
-            i0, i1, i2 = tris[t, 0], tris[t, 1], tris[t, 2]
             i00, i01, i10, i11 = inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3]
-            wu, wv = _deformation(_at(x, i0), _at(x, i1), _at(x, i2), i00, i01, i10, i11)
+            wu, wv = _deformation_of(x, tris, inv, t)
             ka, kc = area[t] * ks, area[t] * kh
             if diagonal:
                 du, dv = _membrane_diagonal(wu, wv, ka, kc), _membrane_diagonal(wv, wu, ka, kc)
@@ -305,7 +296,7 @@ def mesh_fem_product(x, y, fem, out, diagonal):
                         rows[3 * t + k, ax] = (cu * cu * du[ax] + cv * cv * dv[ax]
                                                + 2.0 * cu * cv * kc * wu[ax] * wv[ax])
                 continue
-            dwu, dwv = _deformation(_at(y, i0), _at(y, i1), _at(y, i2), i00, i01, i10, i11)
+            dwu, dwv = _deformation_of(y, tris, inv, t)
             pu, pv = _membrane_hessian(wu, wv, dwu, dwv, ka, kc, True)
             g1, g2 = _comb(pu, i00, pv, i01), _comb(pu, i10, pv, i11)
             for ax in range(3):

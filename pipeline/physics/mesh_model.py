@@ -109,11 +109,10 @@ def mesh_springs(points: np.ndarray, topo: MeshTopology, ks: float,
                  structural: bool, bending: bool) -> MeshSprings:
     """The classic springs of the mesh, rest lengths from `points` (N, 3)."""
     n = len(points)
-    pairs = [topo.edges[:, ::-1]]  # (later, earlier)
-    bend = np.sort(topo.hinges[:, 2:], axis=1)[:, ::-1]
-    bend = bend[bend[:, 0] != bend[:, 1]]
-    bend = np.unique(bend[np.lexsort((bend[:, 1], bend[:, 0]))], axis=0) if len(bend) else bend
-    structural_pairs = pairs[0][np.lexsort((pairs[0][:, 1], pairs[0][:, 0]))]
+    edges = topo.edges[:, ::-1]  # (later, earlier)
+    structural_pairs = edges[np.lexsort((edges[:, 1], edges[:, 0]))]
+    bend = np.sort(topo.hinges[:, 2:], axis=1)[:, ::-1]  # (later, earlier) opposite points
+    bend = np.unique(bend[bend[:, 0] != bend[:, 1]], axis=0)  # sorted rows
     both = np.concatenate([structural_pairs, bend.reshape(-1, 2)]).astype(np.int64)
     a, b = np.ascontiguousarray(both[:, 0]), np.ascontiguousarray(both[:, 1])
     rest = np.linalg.norm(points[b] - points[a], axis=1)
