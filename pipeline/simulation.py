@@ -101,7 +101,7 @@ class Simulation:
         self.system: System = build_system(self.scene, self.model)
         if self.model.mesh is not None and self.system.self_collision:
             _warn_short_edges(self.scene, self.model)
-        if self.system.contact is not None:
+        if self.system.contact is not None and self.system.contact.self_on:
             _warn_start_tangled(self.model, self.system.contact)
         if prepare is not None:
             prepare(self.model, self.system)

@@ -97,7 +97,8 @@ LOOPS = [(["pipeline.physics.colliders:_collide_serially"], ["pipeline.physics.c
          (["pipeline.physics.colliders:_collide_in_chunks"], ["pipeline.physics.constraints:_mark_in_chunks"])]
 WINDS = [[], ["pipeline.physics.wind:add_wind_force", "pipeline.physics.wind:_band"]]
 SELF = [[], ["pipeline.physics.self_collision:self_collide"],
-        ["pipeline.physics.contact:robust_contact", "pipeline.physics.contact:_visit"]]
+        ["pipeline.physics.contact:robust_contact", "pipeline.physics.contact:_visit",
+         "pipeline.physics.collider_contact:robust_colliders"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
             "pipeline.physics.integrators.implicit_euler:_update"]
 # the kernels each integrator's State points to, with the classic model and with the FEM

@@ -356,7 +356,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     if sim.system.contact is not None:
         from pipeline.physics.contact import contact_summary
 
-        notes.append(contact_summary(sim.system.contact))
+        notes.append(contact_summary(sim.system.contact, sim.system.steps_per_frame))
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
 
 

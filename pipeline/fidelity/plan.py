@@ -161,7 +161,7 @@ def make_plan(sim) -> Plan:
                       "(checked every step)" if gap > 0 else
                       "touching the cloth at t = 0: on while it can act")
         colliders.append({"name": name, "status": status})
-    if sim.system.contact is not None:
+    if sim.system.contact is not None and sim.system.contact.self_on:
         self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "
                           f"kept {scene.cloth.thickness:g} m apart, continuous collision "
                           "detection and a fail-safe (the cloth never passes through itself)")

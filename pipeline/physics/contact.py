@@ -35,6 +35,7 @@ from numba.core import types
 
 from clothjit import KernelPointer, njit
 
+from .collider_contact import FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP
 from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
 
 CCD_ROUNDS = 4
@@ -45,9 +46,9 @@ LIST_MARGIN = 1.0
 LISTED_PER_POINT = 64  # room in the list; beyond it, the step visits the hash directly
 IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
 TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
-STATS = 8  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
-#           unresolvable pairs, smallest gap (in thickness, at the step's end), steps,
-#           candidate lists made
+STATS = 14  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
+#            unresolvable pairs, smallest gap (in thickness, at the step's end), steps,
+#            candidate lists made; then the colliders' (pipeline.physics.collider_contact)
 
 
 class RobustContact(NamedTuple):
@@ -73,48 +74,65 @@ class RobustContact(NamedTuple):
     count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list
     anchor: np.ndarray  # (3, N) the positions the list was made at
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
+    self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
     # of robust contact compiled 12 s with it linked there); None in the params it is handed
     visit: KernelPointer | None = None
 
 
 def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
-                 rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray) -> RobustContact:
-    """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N)."""
+                 rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
+                 self_on: bool = True) -> RobustContact:
+    """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N); without
+    `self_on`, for the colliders' robust pass alone (no self-contact scratch)."""
     tris = np.ascontiguousarray(triangles, dtype=np.int64)
     pairs = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
     edges = np.unique(pairs, axis=0)
     n = rest.shape[1]
+    m = n if self_on else 0  # the self-contact's scratch
     size = 1
-    while size < 4 * max(len(tris), len(edges)):
+    while size < 4 * max(len(tris), len(edges)) * self_on:
         size <<= 1
     inv = np.where(pinned != 0, 0.0, 1.0 / mass)
     stats = np.zeros(STATS)
     stats[5] = math.inf
+    stats[-1] = -1.0  # no pinned point forced into a collider yet
     c = RobustContact(float(thickness), float(friction), tris, edges,
                       np.ascontiguousarray(rest, dtype=np.float64), inv,
-                      np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(n, np.uint8),
-                      np.zeros((6, max(len(tris), len(edges)))),
+                      np.zeros((3, n)), np.zeros((3, m)), np.zeros(m), np.zeros(m, np.uint8),
+                      np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
                       np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
                       np.zeros((6, 4 * size)), np.zeros(4),
-                      np.zeros((LISTED_PER_POINT * n, 5), np.int64),
-                      np.zeros(LISTED_PER_POINT * n), np.full(1, -1, np.int64),
-                      np.zeros((3, n)), stats)
+                      np.zeros((LISTED_PER_POINT * m, 5), np.int64),
+                      np.zeros(LISTED_PER_POINT * m), np.full(1, -1, np.int64),
+                      np.zeros((3, m)), stats, bool(self_on))
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
-                                          types.int64))
+                                          types.int64, present=bool(self_on)))
 
 
-def contact_summary(c: RobustContact) -> str:
+def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
     """One line on what the robust contact did over the run so far."""
     s = c.stats
     steps = max(s[6], 1.0)
-    gap = "none closer than the thickness" if not np.isfinite(s[5]) else f"{s[5]:.2f} x thickness"
-    line = (f"robust contact: {s[0] / steps:.0f} pairs tested a step, {s[1]:.0f} proximity "
-            f"pushes, {s[2]:.0f} CCD stops, {s[3]:.0f} points held by the fail-safe; "
-            f"smallest gap found: {gap}")
+    parts = []
+    if c.self_on:
+        gap = ("none closer than the thickness" if not np.isfinite(s[5])
+               else f"{s[5]:.2f} x thickness")
+        parts.append(f"{s[0] / steps:.0f} pairs tested a step, {s[1]:.0f} proximity pushes, "
+                     f"{s[2]:.0f} CCD stops, {s[3]:.0f} points held by the fail-safe; smallest "
+                     f"gap found: {gap}")
+    parts.append(f"colliders: {s[PATH_STOPS]:.0f} paths stopped at a surface, "
+                 f"{s[MOVED_OUT]:.0f} points moved out, {s[FACE_PUSHES]:.0f} triangles pushed out")
+    line = "robust contact: " + "; ".join(parts)
     if s[4] > 0:
         line += f"; {s[4]:.0f} pairs met with no point free to move (pins forcing them)"
+    if s[PIN_POINT] >= 0:
+        frame = int(s[PIN_STEP] - 1) // steps_per_frame + 1
+        line += (f"; pinned point {int(s[PIN_POINT])} is inside a collider from frame {frame} "
+                 f"(pins forcing the cloth into it: no valid state)")
+    elif s[NOT_KEPT] > 0:
+        line += f"; {s[NOT_KEPT]:.0f} times a triangle stayed in a collider after its rounds"
     return line
 
 
@@ -620,6 +638,8 @@ def _cell(x0, x1, c):
 def robust_contact(x, x0, c):
     """The robust self-contact of one step from x0 to x (3, N), in place (see above)."""
     c.stats[6] += 1.0
+    if not c.self_on:
+        return
     for a in range(3):
         for i in range(x.shape[1]):
             c.start[a, i] = x0[a, i]

@@ -17,6 +17,7 @@ from clothjit import KernelPointer, njit
 from pipeline.scene import Scene
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
+from .collider_contact import robust_colliders
 from .contact import RobustContact, pack_contact, robust_contact
 from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
                           stretch_limits)
@@ -59,6 +60,7 @@ class StepKernels(NamedTuple):
     wind: KernelPointer | None  # wind.add_wind_force; absent or None: no wind
     reach: KernelPointer  # reach.reach_check (linked, it was a sixth of every stepping kernel)
     contact: KernelPointer | None = None  # contact.robust_contact; None: the course contact
+    robust_colliders: KernelPointer | None = None  # collider_contact.robust_colliders; ditto
 
 
 class System(NamedTuple):
@@ -106,6 +108,7 @@ class System(NamedTuple):
 # keep their type here (strong references: a NamedTuple takes no weak one).
 _SYSTEM_TYPES: dict[int, tuple[System, object]] = {}
 _SYSTEM_TYPES_KEPT = 16
+COLLIDER_ROUNDS = 2  # alternations of the robust self-contact and colliders in a step
 
 
 @typeof_impl.register(System)
@@ -202,7 +205,9 @@ def step_kernels(s: System) -> StepKernels:
             present=s.wind.on),
         reach=KernelPointer(reach_check, (field, s.reach, s.colliders.active, s.thickness)),
         contact=None if s.contact is None else KernelPointer(robust_contact,
-                                                             (field, field, s.contact)))
+                                                             (field, field, s.contact)),
+        robust_colliders=None if s.contact is None else KernelPointer(
+            robust_colliders, (field, field, s.contact, s.colliders), types.int64))
 
 
 def spring_tuple(n: int) -> tuple:
@@ -221,8 +226,9 @@ def collision_box(model: ClothModel) -> tuple[float, float]:
 
 
 def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
-    """The packed robust self-contact when the scene asks for it and self-collision is on."""
-    if scene.simulation.contact != "robust" or not scene.self_collision:
+    """The packed robust contact when the scene asks for it (its self-contact part when
+    self-collision is on)."""
+    if scene.simulation.contact != "robust":
         return None
     if model.mesh is None:  # the rest shape, whatever positions the run starts from
         rest = initial_grid(scene)
@@ -231,7 +237,7 @@ def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
 
         rest = np.ascontiguousarray(np.asarray(load_cloth_mesh(scene.cloth.mesh).points).T)
     return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles, rest,
-                        model.point_mass, model.pinned)
+                        model.point_mass, model.pinned, self_on=bool(scene.self_collision))
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
@@ -429,13 +435,22 @@ def position_passes(x, last, system, t_start):
         k.stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    _contact_pass(x, last, s.contact, k.contact)
+    _contact_pass(x, last, s.contact, k.contact, s.colliders, k.robust_colliders)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
-def _contact_pass(x, x0, contact, robust):
-    if robust is not None:  # None: numba prunes the pass (the course contact)
+def _contact_pass(x, x0, contact, robust, colliders, robust_colliders):
+    if robust is None:  # numba prunes the pass (the course contact)
+        return
+    robust(x, x0, contact)
+    # the colliders' pass may move points into the cloth, and the self-contact's fail-safe
+    # (back to x0) into a moving collider: alternate while either moves something, the
+    # colliders last (a point inside a collider is never left)
+    for _ in range(COLLIDER_ROUNDS):
+        if robust_colliders(x, x0, contact, colliders) == 0 or not contact.self_on:
+            return
         robust(x, x0, contact)
+    robust_colliders(x, x0, contact, colliders)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)

@@ -154,6 +154,7 @@ COMPILE_SECONDS = {
     "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
     "pipeline.physics.contact:robust_contact": 2.0,
     "pipeline.physics.contact:_visit": 4.0,
+    "pipeline.physics.collider_contact:robust_colliders": 3.0,
 }
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
