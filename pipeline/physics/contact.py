@@ -73,6 +73,7 @@ class RobustContact(NamedTuple):
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
     count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list
     anchor: np.ndarray  # (3, N) the positions the list was made at
+    moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
@@ -105,7 +106,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((6, 4 * size)), np.zeros(4),
                       np.zeros((LISTED_PER_POINT * m, 5), np.int64),
                       np.zeros(LISTED_PER_POINT * m), np.full(1, -1, np.int64),
-                      np.zeros((3, m)), stats, bool(self_on))
+                      np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
@@ -326,28 +327,37 @@ def _collect(x, c, ids):
 @njit(cache=True, nogil=True, error_model="numpy")
 def _listed(x0, x1, c, mode, drift):
     """_visit's modes 0-2 over the candidate list: a pair is skipped where its distance at
-    the list's making, less what its points may have moved since (2 drift), leaves it
-    further than h (mode 0) or apart (CCD)."""
+    the list's making, less what its two primitives' points may have moved since (c.moved),
+    leaves it further than h (mode 0) or apart (CCD) all through the step."""
     acted = 0
     ids = np.zeros(5, np.int64)
     h = c.thickness
-    reach = (h if mode == 0 else h * TOLERANCE) + 2.0 * drift
+    reach = h if mode == 0 else h * TOLERANCE
+    moved, listed, gap = c.moved, c.listed, c.listed_gap
     for k in range(c.count[0]):
-        if c.listed_gap[k] > reach:
+        if gap[k] > reach + 2.0 * drift:
+            continue
+        m0, m1, m2, m3 = (moved[listed[k, 0]], moved[listed[k, 1]], moved[listed[k, 2]],
+                          moved[listed[k, 3]])
+        # a point of a triangle or edge moves no further than its farthest corner
+        near = (m0 + max(m1, m2, m3) if listed[k, 4] == 0 else max(m0, m1) + max(m2, m3))
+        if gap[k] > reach + near:
             continue
         for j in range(5):
-            ids[j] = c.listed[k, j]
+            ids[j] = listed[k, j]
         acted += _pair(x0, x1, c, mode, ids)
     return acted
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _drift(x0, x1, anchor):
+def _drift(x0, x1, anchor, moved):
     """The longest move of any point at x0 or at x1 from the anchor, less the cloth's mean
     move at each: a common move changes no distance, and on the straight paths between x0
-    and x1 a point's move less the interpolated mean stays within the larger of the two."""
+    and x1 a point's move less the interpolated mean stays within the larger of the two.
+    moved[i]: that larger move of point i."""
     n = anchor.shape[1]
     worst = 0.0
+    moved[:] = 0.0
     for x in (x0, x1):
         m0 = m1 = m2 = 0.0
         for i in range(n):
@@ -358,7 +368,10 @@ def _drift(x0, x1, anchor):
         for i in range(n):
             d = ((x[0, i] - anchor[0, i] - m0) ** 2 + (x[1, i] - anchor[1, i] - m1) ** 2
                  + (x[2, i] - anchor[2, i] - m2) ** 2)
+            moved[i] = max(moved[i], d)
             worst = max(worst, d)
+    for i in range(n):
+        moved[i] = math.sqrt(moved[i])
     return math.sqrt(worst)
 
 
@@ -367,7 +380,7 @@ def _round(start, x, c, visit, inner, mode):
     """One visit of every pair in `mode` (0-2), from the candidate list where it holds (made
     again where the points have moved too far from where it was made), else the hash."""
     limit = 0.5 * LIST_MARGIN * c.thickness
-    drift = _drift(start, x, c.anchor) if c.count[0] >= 0 else math.inf
+    drift = _drift(start, x, c.anchor, c.moved) if c.count[0] >= 0 else math.inf
     if drift > limit:
         c.count[0] = 0
         c.stats[7] += 1.0
@@ -375,7 +388,7 @@ def _round(start, x, c, visit, inner, mode):
             for i in range(x.shape[1]):
                 c.anchor[a, i] = x[a, i]
         visit(x, x, inner, 3, _cell(x, x, inner))
-        drift = _drift(start, x, c.anchor)
+        drift = _drift(start, x, c.anchor, c.moved)
     if c.count[0] >= 0 and drift <= limit:
         return visit(start, x, inner, 4 + mode, drift)
     return visit(start, x, inner, mode, _cell(start, x, inner))
