@@ -27,7 +27,7 @@ from pipeline.physics.system import stability_limit
 from conftest import cloth_dict, scene_dict, scene_path
 
 EXPECTED_ORDER = {"verlet": 2, "euler": 1, "symplectic-euler": 1, "rk4": 4,
-                  "implicit-euler": 1, "xpbd": 1}
+                  "implicit-euler": 1, "xpbd": 1, "vbd": 1}
 SYMPLECTIC = ("verlet", "symplectic-euler")
 EXPLICIT = ("verlet", "euler", "symplectic-euler", "rk4")
 
@@ -232,8 +232,10 @@ def test_implicit_euler_stable_at_100x_the_explicit_limit():
 
 # --- contact --------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("name", INTEGRATORS)
+@pytest.mark.parametrize("name", [n for n in INTEGRATORS if n != "vbd"])
 def test_course_sphere_scene_without_penetration(name):
+    # (VBD's collider test is tests/test_vbd.py's: its ten sweeps a step at the course's 30
+    # steps per frame cost ~24 s on this 50x50 cloth)
     """Same tolerance as the Verlet test (test_simulation): Provot's chords over the sphere
     may sink a point by at most the sagitta (1.1 s)^2 / (8 r)."""
     scene = load_scene(scene_path("sphere"), overrides=[f"simulation.integrator={name}"])

@@ -258,6 +258,8 @@ BAD_TABLE = [
     ("integrator_unknown.json", "simulation.integrator: expected one of \"verlet\""),
     ("steps_per_frame_zero.json", "simulation.steps_per_frame: expected an integer >= 1"),
     ("steps_per_frame_float.json", "simulation.steps_per_frame: expected an integer >= 1, got 2.5"),
+    ("iterations_zero.json", "simulation.iterations: expected an integer >= 1, got 0"),
+    ("iterations_float.json", "simulation.iterations: expected an integer >= 1, got 2.5"),
     ("frames_per_sec_negative.json", "simulation.frames_per_sec: expected a number > 0"),
     ("seed_negative.json", "simulation.seed: expected an integer >= 0, got -1"),
     ("self_collision_yes.json", "simulation.self_collision: expected true, false or \"auto\""),
@@ -436,7 +438,8 @@ FULL = raw("two_spheres")
 FULL["cloth"]["pinned"] = [[0, 0], [39, 39]]
 FULL["render"].update({"shader": "bump", "texture": str(ROOT / "textures" / "cloth.png"), "k_a": 0.1, "k_d": [1, 1, 1],
                        "background": [0.1, 0.1, 0.1]})
-FULL["simulation"].update({"integrator": "verlet", "seed": 3, "gravity": [0, -9.8, 0]})
+FULL["simulation"].update({"integrator": "verlet", "seed": 3, "gravity": [0, -9.8, 0],
+                          "iterations": 10})
 load_scene(FULL)  # the base of the mutations is valid
 
 REQUIRED = {
@@ -455,6 +458,7 @@ NON_NEGATIVE = [
                            "thickness", "damping", "density", "ks")
 ] + [("sphere", 0, "radius"), ("sphere", 1, "friction"), ("plane", "friction"),
      ("simulation", "frames_per_sec"), ("simulation", "steps_per_frame"), ("simulation", "seed"),
+     ("simulation", "iterations"),
      ("camera", "vfov"), ("render", "width"), ("render", "aa"), ("render", "k_a"),
      ("render", "background", 1), ("render", "k_d", 0), ("light", "intensity", 2),
      ("cloth", "pinned", 1, 0)]
@@ -576,7 +580,7 @@ def valid_scenes(draw):
     d["simulation"] = draw(st.fixed_dictionaries({}, optional={
         "frames_per_sec": pos, "steps_per_frame": st.integers(1, 100),
         "gravity": vec, "integrator": st.sampled_from(INTEGRATORS), "seed": st.integers(0, 2**32),
-        "self_collision": st.sampled_from([True, False, "auto"])}))
+        "self_collision": st.sampled_from([True, False, "auto"]), "iterations": st.integers(1, 50)}))
     d["render"] = draw(st.fixed_dictionaries({}, optional={
         "shader": st.sampled_from(SHADERS), "width": st.integers(1, 8192),
         "aa": st.integers(1, 8), "k_s": st.floats(0, 10), "k_h": st.floats(-1, 1)}))
@@ -593,5 +597,6 @@ def test_valid_random_scenes_load(d):
     n_sph = len(d["sphere"]) if isinstance(d.get("sphere"), list) else int("sphere" in d)
     assert len(s.colliders) == n_sph + ("plane" in d)
     assert s.simulation.steps_per_frame == d["simulation"].get("steps_per_frame", 30)
+    assert s.simulation.iterations == d["simulation"].get("iterations", 10)
     assert s.render.shader == d["render"].get("shader", "phong")
     assert set(s.render.params) == set(d["render"]) & {"k_s", "k_h"}

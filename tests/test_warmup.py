@@ -101,6 +101,9 @@ SELF = [[], ["pipeline.physics.self_collision:self_collide"],
          "pipeline.physics.collider_contact:robust_colliders"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
             "pipeline.physics.integrators.implicit_euler:_update"]
+# VBD's: one descent over flat element lists for every model and cloth
+VBD = ["pipeline.physics.integrators.vbd:_predict", "pipeline.physics.integrators.vbd:descend",
+       "pipeline.physics.integrators.vbd:_velocities"]
 # the kernels each integrator's State points to, with the classic model and with the FEM
 STATE_KERNELS = {
     "implicit-euler": (IMPLICIT + ["pipeline.physics.forces:spring_prepare",
@@ -113,7 +116,8 @@ STATE_KERNELS = {
     "euler": (["pipeline.physics.integrators.euler:euler_update"],) * 2,
     "symplectic-euler": (["pipeline.physics.integrators.euler:euler_update"],) * 2,
     "rk4": (["pipeline.physics.integrators.rk4:_stage", "pipeline.physics.integrators.rk4:_finish"],) * 2,
-    "xpbd": (["pipeline.physics.integrators.xpbd:solve_springs"], ["pipeline.physics.integrators.xpbd:solve_fem"])}
+    "xpbd": (["pipeline.physics.integrators.xpbd:solve_springs"], ["pipeline.physics.integrators.xpbd:solve_fem"]),
+    "vbd": (VBD, VBD)}
 # (and none: the integrator's kernels cached)
 INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
                             if name != "symplectic-euler"]
@@ -133,7 +137,8 @@ MESH_INTEGRATORS = [([], [])] + [STATE_KERNELS[name] for name in ("verlet", "eul
                  "pipeline.physics.mesh_forces:mesh_fem_apply",
                  "pipeline.physics.mesh_forces:mesh_fem_diagonal"]),
     (["pipeline.physics.mesh_xpbd:solve_mesh_springs"],
-     ["pipeline.physics.mesh_xpbd:solve_mesh_fem"])]
+     ["pipeline.physics.mesh_xpbd:solve_mesh_fem"]),
+    (VBD, VBD)]
 
 
 def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:

@@ -69,7 +69,7 @@ STRAIN_LIMIT = 0.25  # divergence: 99th percentile |strain| of an unconstrained 
 STABILITY_TIME = 0.5  # seconds simulated per stability trial ...
 MAX_STABILITY_STEPS = 20_000  # ... or this many steps if fewer (explicit Euler's tiny steps)
 COLORS = {"verlet": "C0", "euler": "C3", "symplectic-euler": "C1", "rk4": "C2",
-          "implicit-euler": "C4", "xpbd": "C5"}
+          "implicit-euler": "C4", "xpbd": "C5", "vbd": "C6"}
 
 
 # --- building runs ------------------------------------------------------------------------

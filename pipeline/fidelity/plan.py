@@ -42,13 +42,16 @@ class Plan:
     grid_reason: str = ""
     #: a mesh cloth (cloth.mesh): {"file", "points", "triangles"}; None for the grid
     mesh: dict | None = None
+    #: how the integrator solves a step, where that is a choice (VBD's sweeps), else ""
+    solver: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
 
     def lines(self) -> list[str]:
         """The plan as text, one fact a line."""
-        out = [f"fidelity {self.fidelity}: integrator {self.integrator}"]
+        out = [f"fidelity {self.fidelity}: integrator {self.integrator}"
+               + (f" ({self.solver})" if self.solver else "")]
         if self.fidelity == "exact":
             out.append(f"steps per frame {self.steps_per_frame_exact} (as the file says)")
         else:
@@ -180,6 +183,10 @@ def make_plan(sim) -> Plan:
                 colliders=colliders, grid=(sim.model.nw, sim.model.nh),
                 grid_choice=None if sim.grid_choice is None else sim.grid_choice.as_dict(),
                 grid_reason=sim.grid_reason)
+    if sim.integrator == "vbd":
+        plan.solver = (f"Vertex Block Descent, {sim.system.iterations} sweeps per step"
+                       + ("; no stretch limit: Provot's is no energy" if sim.model.fem is None
+                          else ""))
     mesh = sim.model.mesh
     if mesh is not None:
         plan.mesh = {"file": str(mesh.source), "points": int(sim.model.n),

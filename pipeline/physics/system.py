@@ -98,6 +98,10 @@ class System(NamedTuple):
     colliders_last: bool  # colliders after Provot (fidelity auto), else the course order
     pin_motion: PinMotion | None  # a mesh cloth's keyframed pins; None: pins stay put
     contact: RobustContact | None  # robust self-contact (simulation.contact); None: course
+    # Provot's limit acts (position_passes): the classic model, except under VBD, whose
+    # descent solves the springs' own energy (a projection is no energy: docs/integrators.md)
+    stretch_limit: bool = True
+    iterations: int = 10  # the VBD integrator's sweeps per step (simulation.iterations)
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
 
 
@@ -132,6 +136,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
     limit, limit_sq_lo = stretch_limits(model.rest if mesh is None else mesh.springs.rest[None])
     dt = (1.0 / sim.frames_per_sec) / sim.steps_per_frame
     either = scene.wind is not None or scene.self_collision  # see StepKernels
+    limit_acts = stretch_limit_acts(scene, model.fem is None)
     centre = model.x0.mean(axis=1)
     offsets, order = direction_offsets(model.nw), gather_order(model.nw)
     extent = max([float(np.linalg.norm(np.subtract(c.pivot, centre))) for c in scene.colliders]
@@ -165,7 +170,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
                  if either else None),
         spring_force=(spring_force_buffer(model.n, model.nw) if mesh is None
                       else np.zeros((1, 3, len(mesh.springs.a)))),
-        mask=candidate_mask(model.n, present=model.fem is None and mesh is None),
+        mask=candidate_mask(model.n, present=limit_acts and mesh is None),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
         + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent)
         + (0.0 if mesh is None else mesh.pin_speed),
@@ -173,8 +178,18 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         colliders_last=False,
         pin_motion=None if mesh is None else mesh.pin_motion,
         contact=robust_contact_of(scene, model),
+        stretch_limit=limit_acts,
+        iterations=int(sim.iterations),
     )
     return system._replace(kernels=step_kernels(system))
+
+
+def stretch_limit_acts(scene: Scene, classic: bool) -> bool:
+    """Whether Provot's limit runs: on the classic model, except under the VBD integrator
+    (its descent minimises the springs' energy; a projection after it is no energy and
+    would undo the solve). Fidelity auto picks its own integrator (never VBD): the limit acts."""
+    sim = scene.simulation
+    return classic and not (sim.integrator == "vbd" and sim.fidelity != "auto")
 
 
 def step_kernels(s: System) -> StepKernels:
@@ -196,7 +211,7 @@ def step_kernels(s: System) -> StepKernels:
         collide=KernelPointer(collide_all, (field, field, s.pinned, s.colliders, 0.0, 0.0)),
         stretch=KernelPointer(mesh_limit_stretch if mesh else limit_stretch, (
             field, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
-            present=classic),
+            present=s.stretch_limit),
         self_collide=None if s.scratch is None else KernelPointer(self_collide, (
             field, s.pinned, *s.collision_box, s.thickness, s.steps_per_frame,
             s.scratch), present=s.self_collision),
@@ -419,7 +434,8 @@ def position_passes(x, last, system, t_start):
     update from the start-of-step positions `last` (at time t_start) over one step:
     self-collision (when enabled), the colliders in scene order (friction measured from
     `last`), then Provot's stretch limit (classic model only: the FEM's own stretch
-    stiffness bounds its strain). With `colliders_last` (fidelity auto) the colliders come
+    stiffness bounds its strain; not under VBD: System.stretch_limit). With
+    `colliders_last` (fidelity auto) the colliders come
     after Provot, so no point ends a step inside a collider. Passes that pipeline.physics.reach
     proves idle are skipped."""
     s = system
@@ -431,7 +447,7 @@ def position_passes(x, last, system, t_start):
                          k.self_collide, s.self_collision, s.reach.self_on, s.reach.counts)
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
-    if s.classic:  # the FEM's stretch pointer is absent
+    if s.stretch_limit:  # the FEM's stretch pointer is absent (VBD's too)
         k.stretch(x, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask)
     if s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)

@@ -154,6 +154,11 @@ COMPILE_SECONDS = {
     "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
     "pipeline.physics.contact:robust_contact": 2.0,
     "pipeline.physics.contact:_visit": 4.0,
+    # VBD's (issue 44), one of each for every model and cloth: one cold process, CPU seconds
+    # (2026-11-27 at about 19:45, a loaded machine), not scaled
+    "pipeline.physics.integrators.vbd:_predict": 0.5,
+    "pipeline.physics.integrators.vbd:descend": 2.4,
+    "pipeline.physics.integrators.vbd:_velocities": 0.15,
     "pipeline.physics.collider_contact:robust_colliders": 3.0,
 }
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
@@ -174,8 +179,9 @@ RENDER_SECONDS = 8.5
 # Verlet's then 3.0: in four traced cold README runs (2026-11-27 at about 07:12) it took
 # 2.90-3.76 s where the kernels compiled beside it took 1.03-1.35x their estimates (1.13x
 # on average), and this process ended 0.5-1.7 s after the helper
+# VBD's: 2.9 s of CPU, measured with its pointers' jobs (above), not scaled
 STEP_SECONDS = {"verlet": 3.0, "euler": 2.5, "symplectic-euler": 2.5, "rk4": 1.65,
-                "implicit-euler": 2.2, "xpbd": 3.0}
+                "implicit-euler": 2.2, "xpbd": 3.0, "vbd": 2.9}
 HELPER_START = 0.5  # the helper's start: a new interpreter importing the package
 CONTENTION = 1.25
 

@@ -270,6 +270,7 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         fidelity=str(s.get("fidelity", d.fidelity)),
         tolerance_px=float(s.get("tolerance_px", d.tolerance_px)),
         contact=str(s.get("contact", d.contact)),
+        iterations=int(s.get("iterations", d.iterations)),
     )
 
     cam = data.get("camera")

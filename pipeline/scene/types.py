@@ -9,7 +9,7 @@ from typing import Any
 #: Known integrator names for `simulation.integrator` (the first is the default).
 #: The schema's enum is built from this tuple at load time: adding one is one edit here.
 INTEGRATORS: tuple[str, ...] = (
-    "verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd")
+    "verlet", "euler", "symplectic-euler", "rk4", "implicit-euler", "xpbd", "vbd")
 
 
 #: Cloth models for `simulation.model` (the first is the default).
@@ -202,6 +202,7 @@ class SimulationSettings:
     fidelity: str = "exact"  # "exact" or "auto" (pipeline.fidelity.controller)
     tolerance_px: float = 1.0  # auto: screen-space error a frame may add
     contact: str = "course"  # "course" or "robust" (pipeline.physics.contact)
+    iterations: int = 10  # the "vbd" integrator's sweeps per step (the others ignore it)
 
 
 #: `"camera": "course"`: the course viewer's camera exactly (SPEC section 4).

@@ -18,6 +18,9 @@ compiles it from their types: pipeline.run.warmup). Modules are found by name:
                       Witkin 1998), pinned points filtered
     xpbd              springs as compliant distance constraints, alpha = 1 / k (Macklin et al.
                       2016), one Gauss-Seidel sweep per step
+    vbd               Vertex Block Descent (Chen et al. 2024): backward Euler by per-point
+                      3x3 Newton steps on its incremental potential, colour by colour,
+                      simulation.iterations sweeps per step; Provot's limit off
 
 All of them use the same forces (forces.total_force), the same position passes in the
 classic order after the update (system.position_passes: self-collision, colliders, Provot)
