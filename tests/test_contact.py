@@ -186,3 +186,54 @@ def test_a_mesh_cloth_dropped_on_another_piece_does_not_pass_through_it(tmp_path
     assert crossings.edge_triangle_crossings(sim.positions, sim.model.triangles) == 0
     assert sim.positions[len(points):, 1].mean() > sim.positions[:len(points), 1].mean()
     assert sim.system.contact.stats[1] > 0  # the layers met: pushed apart
+
+
+def _folded_cloth(n: int, h: float, seed: int):
+    """A flat n x n grid of 0.3 m folded in half onto itself 0.8 h apart, jittered: (rest
+    (3, N), positions (3, N), triangles (T, 3))."""
+    rng = np.random.default_rng(seed)
+    u, v = np.meshgrid(np.linspace(0, 0.3, n), np.linspace(0, 0.3, n))
+    rest = np.stack([u.ravel(), np.zeros(n * n), v.ravel()])
+    x = rest.copy()
+    far = x[0] > 0.15
+    x[0, far] = 0.3 - x[0, far]
+    x[1, far] = 0.8 * h
+    x += rng.normal(scale=0.2 * h, size=x.shape)
+    a = (np.arange(n - 1)[None, :] + n * np.arange(n - 1)[:, None]).ravel()
+    tris = np.concatenate([np.stack([a, a + 1, a + n], 1), np.stack([a + 1, a + n + 1, a + n], 1)])
+    return rest, np.ascontiguousarray(x), tris
+
+
+def test_the_candidate_list_is_every_pair_within_twice_the_thickness_once():
+    """The broad phase against brute force (the checker's distances, every pair): the pairs
+    within 2 h that are not neighbours at rest, each once. A 20 x 20 fold whose hash puts
+    two cells of one box in one bucket (which once listed their pairs twice)."""
+    from pipeline.physics import contact
+
+    h = 0.008
+    rest, x, tris = _folded_cloth(20, h, 0)
+    n = x.shape[1]
+    c = pack_contact(h, 0.3, tris, rest, np.ones(n), np.zeros(n, np.uint8))
+    contact._round(x, x, c, c.visit, contact.RobustContact(*c[:-1], None), 0)
+    listed = [tuple(int(v) for v in row) for row in c.listed[:c.count[0]]]
+    assert len(listed) == len(set(listed))
+    points, at_rest = x.T, rest.T
+    expected = set()
+    for p in range(n):
+        tri = tris[~np.any(tris == p, axis=1)]
+        near = crossings.point_triangle_distance(
+            np.repeat(points[p][None], len(tri), 0), *(points[tri[:, j]] for j in range(3))) <= 2 * h
+        apart = ~(crossings.point_triangle_distance(
+            np.repeat(at_rest[p][None], len(tri), 0), *(at_rest[tri[:, j]] for j in range(3))) < h)
+        expected |= {(p, *map(int, t), 0) for t in tri[near & apart]}
+    edges = crossings.unique_edges(tris)
+    for i, (a, b) in enumerate(edges):
+        other = edges[i + 1:]
+        other = other[~np.any((other == a) | (other == b), axis=1)]
+        ends = [np.repeat(q[[a, b]][:, None], len(other), 1) for q in (points, at_rest)]
+        near = crossings.segment_segment_distance(*ends[0], points[other[:, 0]],
+                                                  points[other[:, 1]]) <= 2 * h
+        apart = ~(crossings.segment_segment_distance(*ends[1], at_rest[other[:, 0]],
+                                                     at_rest[other[:, 1]]) < h)
+        expected |= {(int(a), int(b), *map(int, e), 1) for e in other[near & apart]}
+    assert set(listed) == expected

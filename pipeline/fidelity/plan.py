@@ -163,6 +163,12 @@ def make_plan(sim) -> Plan:
             status = (f"{gap:.3g} m from the cloth at t = 0: skipped while no point can reach it "
                       "(checked every step)" if gap > 0 else
                       "touching the cloth at t = 0: on while it can act")
+        if sim.system.contact is not None:  # robust contact
+            status += ("; robust: no point path and no triangle through it" if
+                       type(obj).__name__ in ("Sphere", "Box") else
+                       "; robust: each point kept on the side it came from" if
+                       type(obj).__name__ == "Plane" else
+                       "; robust contact does not cover mesh colliders: the course's level set")
         colliders.append({"name": name, "status": status})
     if sim.system.contact is not None and sim.system.contact.self_on:
         self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "

@@ -181,10 +181,13 @@ def _boxes(x0, x1, prims, margin, box):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _build(box, count, cell, bucket_start, entries, entry_box):
-    """Hash `count` boxes into cells of side `cell`; False if the entries do not fit."""
+    """Hash `count` boxes into cells of side `cell`; False if the entries do not fit. A box
+    goes once into each bucket, however many of its cells hash there (a second copy would
+    make its pairs twice)."""
     size = bucket_start.shape[0] - 1
     mask = size - 1
     bucket_start[:] = 0
+    last = np.full(size, -1, np.int64)  # the last box put in each bucket
     total = 0
     for k in range(count):
         lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
@@ -192,13 +195,17 @@ def _build(box, count, cell, bucket_start, entries, entry_box):
         for ix in range(lo[0], hi[0] + 1):
             for iy in range(lo[1], hi[1] + 1):
                 for iz in range(lo[2], hi[2] + 1):
-                    bucket_start[_hash(ix, iy, iz, mask) + 1] += 1
-                    total += 1
+                    b = _hash(ix, iy, iz, mask)
+                    if last[b] != k:
+                        last[b] = k
+                        bucket_start[b + 1] += 1
+                        total += 1
     if total > entries.shape[0]:
         return False
     for b in range(size):
         bucket_start[b + 1] += bucket_start[b]
     fill = bucket_start[:-1].copy()
+    last[:] = -1
     for k in range(count):
         lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
         hi = (math.floor(box[3, k] / cell), math.floor(box[4, k] / cell), math.floor(box[5, k] / cell))
@@ -206,6 +213,9 @@ def _build(box, count, cell, bucket_start, entries, entry_box):
             for iy in range(lo[1], hi[1] + 1):
                 for iz in range(lo[2], hi[2] + 1):
                     b = _hash(ix, iy, iz, mask)
+                    if last[b] == k:
+                        continue
+                    last[b] = k
                     entries[fill[b]] = k
                     for a in range(6):
                         entry_box[a, fill[b]] = box[a, k]
