@@ -18,6 +18,8 @@ from .fem import (_comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_
                   _membrane_hessian, _membrane_stress)
 from .constraints import shorten
 from .forces import CHUNKS, _chunk
+from .mesh_model import (BLOCK, HINGE_CONSTANTS, HINGE_ROWS, PARTS, TRIANGLE_CONSTANTS,
+                         TRIANGLE_ROWS, element_blocks)
 
 
 @njit(cache=True, nogil=True, forceinline=True, no_cpython_wrapper=True)
@@ -101,44 +103,111 @@ def _row_sum(rows, start, slot, p, fx, fy, fz):
     return fx, fy, fz
 
 
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _corner(rows, r, k, j):
+    """Corner k's (x, y, z) of lane j in the block rows from r."""
+    return (rows[r + np.uint64(3 * k * BLOCK) + j], rows[r + np.uint64((3 * k + 1) * BLOCK) + j],
+            rows[r + np.uint64((3 * k + 2) * BLOCK) + j])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _put(rows, r, k, j, v):
+    """Corner k's rows of lane j = v (3,)."""
+    rows[r + np.uint64(3 * k * BLOCK) + j] = v[0]
+    rows[r + np.uint64((3 * k + 1) * BLOCK) + j] = v[1]
+    rows[r + np.uint64((3 * k + 2) * BLOCK) + j] = v[2]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _gather(x, points, first, corners, b, rows, r):
+    """The block rows from r = the positions at x (3, N) of the corners of element block b
+    of a kind (its points from points[first + b corners BLOCK]): a scalar loop (the points
+    are indices), so that the arithmetic after it reads rows at constant distances."""
+    for k in range(corners):
+        at = np.uint64(first + (b * corners + k) * BLOCK)
+        out = r + np.uint64(3 * k * BLOCK)
+        for j in range(np.uint64(BLOCK)):
+            p = np.uint64(points[at + j])
+            rows[out + j] = x[0, p]
+            rows[out + np.uint64(BLOCK) + j] = x[1, p]
+            rows[out + np.uint64(2 * BLOCK) + j] = x[2, p]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _triangle_block(rows, r, constants, c, ks, kh):
+    """A triangle block's corner positions (rows from r) -> their membrane forces, in place
+    (constants from c)."""
+    for j in range(np.uint64(BLOCK)):
+        i00, i01 = constants[c + j], constants[c + np.uint64(BLOCK) + j]
+        i10, i11 = constants[c + np.uint64(2 * BLOCK) + j], constants[c + np.uint64(3 * BLOCK) + j]
+        area = constants[c + np.uint64(4 * BLOCK) + j]
+        wu, wv = _deformation(_corner(rows, r, 0, j), _corner(rows, r, 1, j),
+                              _corner(rows, r, 2, j), i00, i01, i10, i11)
+        pu, pv = _membrane_stress(wu, wv, area * ks, area * kh)
+        g1 = _comb(pu, i00, pv, i01)  # dE/dx1
+        g2 = _comb(pu, i10, pv, i11)  # dE/dx2
+        _put(rows, r, 0, j, (g1[0] + g2[0], g1[1] + g2[1], g1[2] + g2[2]))  # -(dE/dx0)
+        _put(rows, r, 1, j, (-g1[0], -g1[1], -g1[2]))
+        _put(rows, r, 2, j, (-g2[0], -g2[1], -g2[2]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _hinge_block(rows, r, constants, c, kb):
+    """A hinge block's corner positions (rows from r) -> their bending forces, in place
+    (constants from c)."""
+    for j in range(np.uint64(BLOCK)):
+        factor, rest = constants[c + j], constants[c + np.uint64(BLOCK) + j]
+        theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge(
+            _corner(rows, r, 0, j), _corner(rows, r, 1, j), _corner(rows, r, 2, j),
+            _corner(rows, r, 3, j))
+        scale = -2.0 * kb * factor * (theta - rest) if ok else 0.0
+        g = _hinge_gradient(length, (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1),
+                            (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2), t1, t2)
+        for k in range(4):
+            _put(rows, r, k, j, (scale * g[k][0], scale * g[k][1], scale * g[k][2]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _sum_points(rows, start, slot, order, lo, hi, mass, gravity, f):
+    """f[:, p] = mass * gravity + the rows of p in incidence order, p = order[lo:hi]."""
+    for i in range(lo, hi):
+        p = np.uint64(order[i])
+        m = mass[p]
+        fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
+        for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
+            s = np.uint64(slot[j])
+            fx += rows[s]
+            fy += rows[s + np.uint64(BLOCK)]
+            fz += rows[s + np.uint64(2 * BLOCK)]
+        f[0, p], f[1, p], f[2, p] = fx, fy, fz
+
+
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def mesh_fem_forces(x, fem, mass, gravity, f):
-    """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem)."""
-    tris, area, inv = fem.triangles, fem.tri_area, fem.tri_inv
-    hinges, factor, rest_angle = fem.hinges, fem.hinge_factor, fem.rest_angle
-    out, start, slot = fem.corner_force, fem.start, fem.slot
-    n_tri, n_hinge, n = tris.shape[0], hinges.shape[0], x.shape[1]
+    """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem): each
+    part's element blocks into their rows and the sums of the points whose rows are all
+    there, then the sums of the other points."""
+    points, constants, rows = fem.block_points, fem.block_constants, fem.block_rows
+    bounds, part_points, order = fem.part_blocks, fem.part_points, fem.point_order
+    start, slot, tb = fem.start, fem.row_slot, fem.tri_blocks
     ks, kh, kb = fem.k_stretch, fem.k_shear, fem.k_bend
+    hinge_points, hinge_constants = 3 * tb * BLOCK, TRIANGLE_CONSTANTS * tb * BLOCK
+    for q in prange(PARTS):
+        for b in range(bounds[q, 0], bounds[q + 1, 0]):
+            r = np.uint64(TRIANGLE_ROWS * BLOCK * b)
+            _gather(x, points, 0, 3, b, rows, r)
+            _triangle_block(rows, r, constants, np.uint64(TRIANGLE_CONSTANTS * BLOCK * b), ks, kh)
+        for b in range(bounds[q, 1], bounds[q + 1, 1]):
+            r = np.uint64((TRIANGLE_ROWS * tb + HINGE_ROWS * b) * BLOCK)
+            _gather(x, points, hinge_points, 4, b, rows, r)
+            _hinge_block(rows, r, constants,
+                         np.uint64(hinge_constants + HINGE_CONSTANTS * BLOCK * b), kb)
+        _sum_points(rows, start, slot, order, part_points[q], part_points[q + 1], mass,
+                    gravity, f)
+    first, shared = part_points[PARTS], part_points[PARTS + 1] - part_points[PARTS]
     for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n_tri)
-        for t in range(lo, hi):
-            i00, i01, i10, i11 = inv[t, 0], inv[t, 1], inv[t, 2], inv[t, 3]
-            wu, wv = _deformation_of(x, tris, inv, t)
-            pu, pv = _membrane_stress(wu, wv, area[t] * ks, area[t] * kh)
-            g1 = _comb(pu, i00, pv, i01)  # dE/dx1
-            g2 = _comb(pu, i10, pv, i11)  # dE/dx2
-            for ax in range(3):
-                out[3 * t, ax] = g1[ax] + g2[ax]  # -(dE/dx0) = dE/dx1 + dE/dx2
-                out[3 * t + 1, ax] = -g1[ax]
-                out[3 * t + 2, ax] = -g2[ax]
-    base = 3 * n_tri
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n_hinge)
-        for h in range(lo, hi):
-            theta, ok, length, n1, n2, inv1, inv2, t1, t2 = _hinge_at(x, hinges, h)
-            scale = -2.0 * kb * factor[h] * (theta - rest_angle[h]) if ok else 0.0
-            g = _hinge_gradient(length, (n1[0] * inv1, n1[1] * inv1, n1[2] * inv1),
-                                (n2[0] * inv2, n2[1] * inv2, n2[2] * inv2), t1, t2)
-            for k in range(4):
-                for ax in range(3):
-                    out[base + 4 * h + k, ax] = scale * g[k][ax]
-    for c in prange(CHUNKS):
-        lo, hi = _chunk(c, n)
-        for p in range(lo, hi):
-            m = mass[p]
-            fx, fy, fz = _row_sum(out, start, slot, p, m * gravity[0], m * gravity[1],
-                                  m * gravity[2])
-            f[0, p], f[1, p], f[2, p] = fx, fy, fz
+        lo, hi = _chunk(c, shared)
+        _sum_points(rows, start, slot, order, first + lo, first + hi, mass, gravity, f)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -159,7 +228,7 @@ def with_rest_angles(fem, x0: np.ndarray):
     """`fem` (MeshFem) with its rest angles measured at x0 (3, N)."""
     angles = np.zeros(fem.hinges.shape[0])
     hinge_angles(x0, fem.hinges, angles)
-    return fem._replace(rest_angle=angles)
+    return element_blocks(fem._replace(rest_angle=angles))
 
 
 @njit(cache=True, nogil=True)

@@ -16,6 +16,17 @@ interior edge's rest dihedral angle, so a curved garment rests in its own shape.
 Every element writes its vertices' forces to its own rows of a buffer; each point then sums
 its rows in a fixed order (`start`, `slot`: a compressed incidence list), so results do not
 depend on the number of threads.
+
+The FEM's forces run over blocks of BLOCK elements of one kind (`element_blocks`): a block
+holds its corners' points, its constants and rows for its corners' positions (gathered from
+the points, then overwritten by the corners' forces) as rows of BLOCK consecutive values in
+flat arrays. BLOCK is a literal, so every row of a block lies a constant distance from the
+others: LLVM vectorises the element arithmetic over a block without run-time overlap tests,
+which it gives up on beyond a handful of rows. The blocks are cut into PARTS parts of
+consecutive blocks of each kind; a point whose rows all lie in one part (most points of a
+mesh whose points are numbered along its surface) is summed by that part's task right
+after its blocks, while its rows are still in the core's cache, the others after every
+part. Any part sums a point's rows in incidence order.
 """
 from __future__ import annotations
 
@@ -25,6 +36,11 @@ from typing import NamedTuple
 import numpy as np
 
 BENDING_FACTOR = 0.2  # k = 0.2 * ks for bending springs, as the grid's
+BLOCK = 64  # elements per block (see the module docstring)
+PARTS = 16  # tasks of the element pass (see the module docstring)
+# rows per block: a triangle's 3 corners x 3 axes, its constants R^-1 (00, 01, 10, 11) and
+# rest area; a hinge's 4 corners x 3 axes, its factor and rest angle
+TRIANGLE_ROWS, TRIANGLE_CONSTANTS, HINGE_ROWS, HINGE_CONSTANTS = 9, 5, 12, 2
 
 
 class MeshSprings(NamedTuple):
@@ -55,6 +71,18 @@ class MeshFem(NamedTuple):
     corner_force: np.ndarray  # (3 T + 4 H, 3) scratch: each element corner's force
     start: np.ndarray  # (N + 1,) int64: point p's corners are slot[start[p]:start[p + 1]]
     slot: np.ndarray  # (3 T + 4 H,) int64 rows of corner_force, ascending per point
+    # the elements in blocks (element_blocks): triangle blocks [0, tri_blocks), then hinges
+    tri_blocks: int = 0
+    part_blocks: np.ndarray | None = None  # (PARTS + 1, 2) int64: part q's triangle blocks
+    # are [part_blocks[q, 0], part_blocks[q + 1, 0]), its hinge blocks likewise in column 1
+    part_points: np.ndarray | None = None  # (PARTS + 2,) int64: part q sums the points
+    # point_order[part_points[q]:part_points[q + 1]]; q = PARTS: the points of several parts
+    point_order: np.ndarray | None = None  # (N,) int64 the points by part, ascending
+    block_points: np.ndarray | None = None  # (BLOCK (3 tri_blocks + 4 hinge blocks),) int64
+    block_constants: np.ndarray | None = None  # (BLOCK (5 tri_blocks + 2 hinge blocks),)
+    block_rows: np.ndarray | None = None  # (BLOCK (9 tri_blocks + 12 hinge blocks),) scratch
+    row_slot: np.ndarray | None = None  # (3 T + 4 H,) int64: slot's rows in block_rows
+    # (axis 0; axes 1, 2 follow at BLOCK and 2 BLOCK), in slot's order (fem.start's)
 
 
 @dataclass(frozen=True)
@@ -173,11 +201,71 @@ def mesh_fem(points: np.ndarray, topo: MeshTopology, k_stretch: float, k_shear: 
     factor = np.sum(e * e, axis=1) / (2.0 * (area1 + area2))
     owner = np.concatenate([tris.reshape(-1), hinges.reshape(-1)])
     start, slot = incidence(owner, n)
-    return MeshFem(k_stretch=float(k_stretch), k_shear=float(k_shear), k_bend=float(k_bend),
-                   triangles=tris, tri_area=area, tri_inv=np.ascontiguousarray(inv),
-                   hinges=np.ascontiguousarray(hinges), hinge_factor=factor,
-                   rest_angle=np.zeros(len(hinges)), corner_force=np.zeros((len(owner), 3)),
-                   start=start, slot=slot)
+    return element_blocks(MeshFem(
+        k_stretch=float(k_stretch), k_shear=float(k_shear), k_bend=float(k_bend),
+        triangles=tris, tri_area=area, tri_inv=np.ascontiguousarray(inv),
+        hinges=np.ascontiguousarray(hinges), hinge_factor=factor,
+        rest_angle=np.zeros(len(hinges)), corner_force=np.zeros((len(owner), 3)),
+        start=start, slot=slot))
+
+
+def _blocked(rows: np.ndarray, blocks: int) -> np.ndarray:
+    """(blocks BLOCK K,): rows (M, K) of M <= blocks BLOCK elements as blocks of K rows of
+    BLOCK values (element b BLOCK + j's row k at (b K + k) BLOCK + j), padded with zeros."""
+    m, k = rows.shape
+    padded = np.zeros((blocks * BLOCK, k), dtype=rows.dtype)
+    padded[:m] = rows
+    return padded.reshape(blocks, BLOCK, k).transpose(0, 2, 1).reshape(-1)
+
+
+def element_blocks(fem: MeshFem) -> MeshFem:
+    """`fem` with its block fields made from its element lists (again after a change of
+    them, e.g. of the rest angles). Each kind's elements go into blocks by their lowest
+    point, and part q takes the blocks whose first element's lowest point is in
+    [q N / PARTS, (q + 1) N / PARTS): on a mesh whose points are numbered along its surface,
+    most of a point's elements are in one part. Padding elements have point 0 and zero
+    constants; no point sums their rows."""
+    tris, hinges, n = fem.triangles, fem.hinges, len(fem.start) - 1
+    tb = -(-len(tris) // BLOCK)
+    cuts = np.arange(PARTS + 1) * n // PARTS
+    points, constants, corner_rows, bounds = [], [], [], []
+    first_row = 0
+    for elements, own, size in ((tris, np.concatenate([fem.tri_inv, fem.tri_area[:, None]], 1),
+                                 TRIANGLE_ROWS),
+                                (hinges, np.stack([fem.hinge_factor, fem.rest_angle], 1),
+                                 HINGE_ROWS)):
+        blocks = -(-len(elements) // BLOCK)
+        key = elements.min(axis=1) if len(elements) else np.zeros(0, dtype=np.int64)
+        order = np.argsort(key, kind="stable")
+        points.append(_blocked(elements[order], blocks))
+        constants.append(_blocked(own[order], blocks))
+        at = np.empty(len(order), dtype=np.int64)
+        at[order] = np.arange(len(order))  # each element's place in the blocks
+        # each corner's axis-0 row in block_rows, corner_force's row order (element, corner)
+        e, k = np.divmod(np.arange(elements.size), elements.shape[1])
+        corner_rows.append((first_row + at[e] // BLOCK * size + 3 * k) * BLOCK + at[e] % BLOCK)
+        bounds.append(np.searchsorted(key[order][::BLOCK], cuts, side="left"))
+        bounds[-1][-1] = blocks
+        first_row += blocks * size
+    row = np.concatenate(corner_rows).astype(np.int64)
+    part = np.concatenate([np.searchsorted(bounds[0], corner_rows[0] // BLOCK // TRIANGLE_ROWS,
+                                           side="right"),
+                           np.searchsorted(bounds[1], (corner_rows[1] // BLOCK - tb * TRIANGLE_ROWS)
+                                           // HINGE_ROWS, side="right")]) - 1
+    owner = np.repeat(np.arange(n), np.diff(fem.start))
+    lowest, highest = np.full(n, PARTS), np.zeros(n, dtype=np.int64)
+    np.minimum.at(lowest, owner, part[fem.slot])
+    np.maximum.at(highest, owner, part[fem.slot])
+    point_part = np.where(lowest == highest, lowest, PARTS)
+    part_points = np.zeros(PARTS + 2, dtype=np.int64)
+    np.cumsum(np.bincount(point_part, minlength=PARTS + 1), out=part_points[1:])
+    return fem._replace(
+        tri_blocks=tb, part_blocks=np.stack(bounds, axis=1).astype(np.int64),
+        part_points=part_points,
+        point_order=np.argsort(point_part, kind="stable").astype(np.int64),
+        block_points=np.concatenate(points).astype(np.int64),
+        block_constants=np.ascontiguousarray(np.concatenate(constants), dtype=np.float64),
+        block_rows=np.zeros(first_row * BLOCK), row_slot=row[fem.slot])
 
 
 def lumped_masses(points: np.ndarray, triangles: np.ndarray, density: float) -> np.ndarray:

@@ -138,7 +138,7 @@ COMPILE_SECONDS = {
     "pipeline.physics.integrators.rk4:_stage": 0.65,
     "pipeline.physics.integrators.rk4:_finish": 0.4,
     "pipeline.physics.mesh_forces:mesh_internal_forces": 1.55,
-    "pipeline.physics.mesh_forces:mesh_fem_internal_forces": 2.8,
+    "pipeline.physics.mesh_forces:mesh_fem_internal_forces": 3.5,
     "pipeline.physics.mesh_forces:mesh_limit_stretch": 0.35,
     "pipeline.physics.mesh_wind:add_mesh_wind_force": 3.6,
     # a mesh cloth's implicit Euler and XPBD kernels: set beside the grid's of the same
