@@ -146,3 +146,24 @@ def test_robust_colliders_are_deterministic():
         sim.advance(80)
         runs.append(sim.positions.tobytes())
     assert runs[0] == runs[1]
+
+
+@pytest.mark.parametrize("contact", ["course", "robust"])
+def test_a_sphere_rising_at_10_m_s_carries_the_cloth_lying_on_it(contact):
+    """A free cloth settles on a sphere that then rises at 10 m/s: the cloth goes up with
+    it (the guard allows a point twice a surface's speed: a bounce), and under robust
+    contact no point and no edge is ever in the sphere."""
+    scene = {"cloth": {**_cloth(20), "width": 0.8, "height": 0.8},
+             "sphere": {"origin": [0.4, 0.65, 0.4], "radius": 0.25, "friction": 0.5,
+                        "keyframes": [{"time": 0.4}, {"time": 0.55, "translation": [0, 1.5, 0]}]},
+             "simulation": {"contact": contact}}
+    sim = Simulation(scene)
+    edges = CC.unique_edges(sim.model.triangles)
+    worst = 0
+    for _ in range(54):  # to 0.6 s
+        sim.advance(1)
+        v = CC.collider_violations(sim.positions, edges, sim.scene.colliders, sim.time)
+        worst = max(worst, v["inside"] + v["edges"])
+    assert np.median(sim.positions[:, 1]) > 2.0  # carried up with the sphere (top at 2.4 m)
+    if contact == "robust":
+        assert worst == 0

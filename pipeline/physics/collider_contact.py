@@ -33,7 +33,7 @@ from .ccd import point_triangle_distance
 from .colliders import _to_rest, _to_world, box, sphere
 
 SURFACE_GAP = 1e-4  # metres kept outside a surface (the course's box and plane keep the same)
-FACE_ROUNDS = 8
+FACE_ROUNDS = 16
 MIN_FREE_WEIGHT = 0.25  # of a triangle's deepest point on free corners, to move it
 # stats (RobustContact.stats): path stops, points moved out, triangle pushes, not kept
 # (pins or rounds exhausted), first step of a pinned violation, one pinned point there
@@ -291,7 +291,7 @@ def _paths(x, x0, inv_mass, stats, kind, prm, frame, k):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _faces(x, triangles, inv_mass, stats, kind, prm, frame, k, apply):
+def _faces(x, triangles, inv_mass, push, pushes, stats, kind, prm, frame, k, apply):
     """One round of stage 2 for collider k: (triangles in it that can move, triangles in it
     that pinned corners hold there), moving the first out when `apply`; (0, 0): every
     triangle, so every edge, is clear."""
@@ -325,10 +325,19 @@ def _faces(x, triangles, inv_mass, stats, kind, prm, frame, k, apply):
             nx, ny, nz = _rotate(frame[2], k, nx, ny, nz)
         for p, weight in ((i, wi), (j, wj), (l, wl)):
             if weight != 0.0:
-                x[0, p] += move * weight * nx
-                x[1, p] += move * weight * ny
-                x[2, p] += move * weight * nz
+                push[0, p] += move * weight * nx
+                push[1, p] += move * weight * ny
+                push[2, p] += move * weight * nz
+                pushes[p] += 1.0
         stats[FACE_PUSHES] += 1.0
+    if apply and through > 0:  # the mean of each point's pushes (Jacobi: a point of six
+        # triangles is not pushed six times over)
+        for p in range(x.shape[1]):
+            if pushes[p] > 0.0:
+                for a in range(3):
+                    x[a, p] += push[a, p] / pushes[p]
+                    push[a, p] = 0.0
+                pushes[p] = 0.0
     return through, stuck
 
 
@@ -372,7 +381,7 @@ def robust_colliders(x, x0, c, table):
         prm = table.params[k]
         moved += _paths(x, x0, inv_mass, stats, kind, prm, frame, k)
         for r in range(FACE_ROUNDS + 1):  # the last round only looks
-            through, stuck = _faces(x, c.triangles, inv_mass, stats, kind, prm, frame, k,
+            through, stuck = _faces(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind, prm, frame, k,
                                     r < FACE_ROUNDS)
             if through == 0:
                 break

@@ -61,7 +61,7 @@ class RobustContact(NamedTuple):
     rest: np.ndarray  # (3, N) rest positions (pairs closer than h there are neighbours)
     inv_mass: np.ndarray  # (N,) 1 / mass, 0 for pinned points
     start: np.ndarray  # (3, N) scratch: x0
-    push: np.ndarray  # (3, N) scratch: corrections summed
+    push: np.ndarray  # (3, N) scratch: corrections summed (the colliders' pass too)
     pushes: np.ndarray  # (N,) scratch: corrections counted
     frozen: np.ndarray  # (N,) uint8 scratch
     box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
@@ -100,7 +100,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     stats[-1] = -1.0  # no pinned point forced into a collider yet
     c = RobustContact(float(thickness), float(friction), tris, edges,
                       np.ascontiguousarray(rest, dtype=np.float64), inv,
-                      np.zeros((3, n)), np.zeros((3, m)), np.zeros(m), np.zeros(m, np.uint8),
+                      np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(m, np.uint8),
                       np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
                       np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
                       np.zeros((6, 4 * size)), np.zeros(4),

@@ -172,7 +172,8 @@ def build_system(scene: Scene, model: ClothModel) -> System:
                       else np.zeros((1, 3, len(mesh.springs.a)))),
         mask=candidate_mask(model.n, present=limit_acts and mesh is None),
         slack_speed=slack_speed(model.thickness, sim.frames_per_sec, scene.self_collision)
-        + max_wind_speed(scene.wind) + max_surface_speed(scene.colliders, extent)
+        # a moving surface can throw a point at up to twice its own speed (a bounce)
+        + max_wind_speed(scene.wind) + 2.0 * max_surface_speed(scene.colliders, extent)
         + (0.0 if mesh is None else mesh.pin_speed),
         reach=new_reach(model.n),
         colliders_last=False,
