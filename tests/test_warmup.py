@@ -311,10 +311,14 @@ def _best_splits(linked, free, here_sums, render, step, rng) -> float:
     return float(ways.min())
 
 
+EXHAUSTIVE = 16  # free kernels; beyond, 2^k ways cost seconds per part
+
+
 def test_split_balances_the_two_processes():
     """On every scene's kernels, all cold and 60 random parts of them (the rest cached):
     the split is within 4/3 of the best one (every way of sharing them, the linked callees
-    here) and beats one process when it starts the helper."""
+    here; searched where at most EXHAUSTIVE kernels are free: 2^k ways) and beats one
+    process when it starts the helper."""
     rng, checks = random.Random(15), random.Random(16)
     for names in _scenes() + _mesh_scenes()[::5]:
         parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(60)]
@@ -322,7 +326,7 @@ def test_split_balances_the_two_processes():
             jobs = _jobs(part)
             free = [j for j in jobs if not j.linked]
             linked = [j for j in jobs if j.linked]
-            here_sums = _here_sums(free)
+            here_sums = _here_sums(free) if len(free) <= EXHAUSTIVE else None
             for render in (False, True):
                 for step in (0.0, min(warmup.STEP_SECONDS.values()),
                              max(warmup.STEP_SECONDS.values())):
@@ -330,11 +334,13 @@ def test_split_balances_the_two_processes():
                     assert sorted(j.name for j in here + helper) == sorted(part)
                     assert not any(j.linked for j in helper)
                     alone = warmup.estimate_seconds(jobs, [], render, step, False)
-                    best = _best_splits(linked, free, here_sums, render, step, checks)
                     chosen = warmup.estimate_seconds(here, helper, render, step, two)
                     # the helper only when it is faster than one process
                     assert chosen <= alone and (two or not helper)
+                    if here_sums is None:
+                        continue
                     # longest first to the side that ends sooner: near the best split
+                    best = _best_splits(linked, free, here_sums, render, step, checks)
                     assert chosen <= min(alone, best * 4 / 3) + 1e-9
     # the README scene: the renderer and every simulation kernel cold -> two processes
     readme = _jobs(COMMON + MODELS[0] + TABLES[1])
