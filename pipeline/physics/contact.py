@@ -67,7 +67,8 @@ class RobustContact(NamedTuple):
     box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
     bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash
     entries: np.ndarray  # (cap,) int64 scratch of the hash: the primitives, by bucket
-    entry_box: np.ndarray  # (6, cap) scratch: their boxes in the same order (read in turn)
+    entry_box: np.ndarray  # (9, cap) scratch: their boxes in the same order (read in turn),
+    #                        then the cell of each box's lower corner
     roots: np.ndarray  # (4,) scratch of the cubic's roots
     listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
@@ -103,7 +104,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(m, np.uint8),
                       np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
                       np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
-                      np.zeros((6, 4 * size)), np.zeros(4),
+                      np.zeros((9, 4 * size)), np.zeros(4),
                       np.zeros((LISTED_PER_POINT * m, 5), np.int64),
                       np.zeros(LISTED_PER_POINT * m), np.full(1, -1, np.int64),
                       np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
@@ -219,6 +220,8 @@ def _build(box, count, cell, bucket_start, entries, entry_box):
                     entries[fill[b]] = k
                     for a in range(6):
                         entry_box[a, fill[b]] = box[a, k]
+                    for a in range(3):
+                        entry_box[6 + a, fill[b]] = lo[a]
                     fill[b] += 1
     return True
 
@@ -268,18 +271,19 @@ def _visit(x0, x1, c, mode, cell):
     for p in range(n):
         plo = (min(x0[0, p], x1[0, p]), min(x0[1, p], x1[1, p]), min(x0[2, p], x1[2, p]))
         phi = (max(x0[0, p], x1[0, p]), max(x0[1, p], x1[1, p]), max(x0[2, p], x1[2, p]))
-        for ix in range(math.floor(plo[0] / cell), math.floor(phi[0] / cell) + 1):
-            for iy in range(math.floor(plo[1] / cell), math.floor(phi[1] / cell) + 1):
-                for iz in range(math.floor(plo[2] / cell), math.floor(phi[2] / cell) + 1):
+        q0, q1, q2 = math.floor(plo[0] / cell), math.floor(plo[1] / cell), math.floor(plo[2] / cell)
+        for ix in range(q0, math.floor(phi[0] / cell) + 1):
+            for iy in range(q1, math.floor(phi[1] / cell) + 1):
+                for iz in range(q2, math.floor(phi[2] / cell) + 1):
                     b = _hash(ix, iy, iz, mask)
                     for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
                         if (eb[0, e] > phi[0] or eb[3, e] < plo[0] or eb[1, e] > phi[1]
                                 or eb[4, e] < plo[1] or eb[2, e] > phi[2] or eb[5, e] < plo[2]):
                             continue
                         # the canonical cell: that of the larger of the two lower corners
-                        if (math.floor(max(eb[0, e], plo[0]) / cell) != ix
-                                or math.floor(max(eb[1, e], plo[1]) / cell) != iy
-                                or math.floor(max(eb[2, e], plo[2]) / cell) != iz):
+                        # (floor(max(a, b) / cell) = max of the floors: both monotone)
+                        if (max(eb[6, e], q0) != ix or max(eb[7, e], q1) != iy
+                                or max(eb[8, e], q2) != iz):
                             continue
                         t = c.entries[e]
                         if _shares(tris[t], p):
@@ -294,20 +298,19 @@ def _visit(x0, x1, c, mode, cell):
     for e1 in range(edges.shape[0]):
         a, b2 = edges[e1, 0], edges[e1, 1]
         lo0, lo1, lo2, hi0, hi1, hi2 = box[0, e1], box[1, e1], box[2, e1], box[3, e1], box[4, e1], box[5, e1]
-        for ix in range(math.floor(lo0 / cell), math.floor(hi0 / cell) + 1):
-            for iy in range(math.floor(lo1 / cell), math.floor(hi1 / cell) + 1):
-                for iz in range(math.floor(lo2 / cell), math.floor(hi2 / cell) + 1):
+        q0, q1, q2 = math.floor(lo0 / cell), math.floor(lo1 / cell), math.floor(lo2 / cell)
+        for ix in range(q0, math.floor(hi0 / cell) + 1):
+            for iy in range(q1, math.floor(hi1 / cell) + 1):
+                for iz in range(q2, math.floor(hi2 / cell) + 1):
                     bk = _hash(ix, iy, iz, mask)
                     for e in range(c.bucket_start[bk], c.bucket_start[bk + 1]):
-                        if (eb[0, e] > hi0 or eb[3, e] < lo0 or eb[1, e] > hi1
-                                or eb[4, e] < lo1 or eb[2, e] > hi2 or eb[5, e] < lo2):
-                            continue
                         e2 = c.entries[e]
                         if e2 <= e1:
                             continue
-                        if (math.floor(max(lo0, eb[0, e]) / cell) != ix
-                                or math.floor(max(lo1, eb[1, e]) / cell) != iy
-                                or math.floor(max(lo2, eb[2, e]) / cell) != iz):
+                        if (eb[0, e] > hi0 or eb[3, e] < lo0 or eb[1, e] > hi1
+                                or eb[4, e] < lo1 or eb[2, e] > hi2 or eb[5, e] < lo2):
+                            continue
+                        if max(eb[6, e], q0) != ix or max(eb[7, e], q1) != iy or max(eb[8, e], q2) != iz:
                             continue
                         c2, d2 = edges[e2, 0], edges[e2, 1]
                         if a == c2 or a == d2 or b2 == c2 or b2 == d2:
