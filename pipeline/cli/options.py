@@ -192,6 +192,8 @@ def build_parser() -> argparse.ArgumentParser:
             "130 / 143 / 129 stopped by SIGINT / SIGTERM / SIGHUP (nothing is left behind).",
             "With --workers N or --scheduler ADDR the simulation runs as one Dask task and "
             "the frames are rasterised in chunks by the workers (docs/distributed.md).",
+            "'render --from shot.npz --out x.gif --shader toon' draws again a shot that "
+            "--export-npz recorded, without simulating it again.",
             "Subcommands: 'render batch A.json B.json --out-dir OUT' renders many scenes; "
             "'render report SCENE.json --out report.html' compares shaders and "
             "parameter sweeps side by side (also reached with --shader all or an .html "
@@ -201,7 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         allow_abbrev=False,
     )
-    p.add_argument("scene", metavar="SCENE.json", help="scene file (JSON)")
+    p.add_argument("scene", metavar="SCENE.json", nargs="?",
+                   help="scene file (JSON); with --from, the scene the NPZ records when left "
+                        "out")
     p.add_argument("--out", "-o", metavar="PATH",
                    help="output: NAME.gif, NAME.mp4, NAME.png or DIR/ (numbered PNGs)")
     add_render_options(p, shaders)
@@ -211,7 +215,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--export-obj", metavar="DIR",
                    help="also write one OBJ per output frame into DIR (an 'o' group per object)")
     p.add_argument("--export-npz", metavar="FILE",
-                   help="also write positions of every output frame, faces, uv and times")
+                   help="also write positions of every output frame, faces, uv, times and "
+                        "the scene (what --from reads)")
+    p.add_argument("--from", dest="from_npz", metavar="SHOT.npz",
+                   help="render the shot an --export-npz file holds, without simulating: "
+                        "another --shader, --size, --aa or --set camera/light/render value; "
+                        "its frames and times by default")
     p.add_argument("--check", metavar="GOLDEN.png",
                    help="with a .png output: compare with GOLDEN.png; exit 3 beyond tolerance "
                         "and write OUT.diff.png beside the output")

@@ -46,6 +46,8 @@ class Plan:
     height: int
     aa: int
     overrides: list[str] = field(default_factory=list)
+    # the arrays that record the scene in an --export-npz file (pipeline.run.shotfile)
+    record: dict = field(default_factory=dict)
 
     @property
     def shot_seconds(self) -> float:
@@ -216,6 +218,12 @@ def run(args, err: Errors, source=None) -> int:
     t_wall = time.perf_counter()
     from pipeline.scene import SceneFile, load_scene
 
+    if getattr(args, "from_npz", None) is not None:  # draw a recorded shot: no simulation
+        from .render_from import run_from
+
+        return run_from(args, err, t_wall)
+    if source is None and args.scene is None:
+        raise UsageError("give the scene: render SCENE.json --out ... (or --from SHOT.npz)")
     output_kind(args)
     on_cluster = cluster_requested(args)
     if on_cluster and (args.export_obj or args.export_npz):
@@ -228,10 +236,16 @@ def run(args, err: Errors, source=None) -> int:
         warnings.simplefilter("default")
         warnings.showwarning = lambda message, category, *a, **k: err.warn(
             one_line(message) if str(message).strip() else category.__name__)
-        if source is None:
-            source = SceneFile.read(args.scene) if on_cluster else args.scene
+        if source is None:  # an NPZ export records the scene file's bytes as read
+            source = (SceneFile.read(args.scene) if on_cluster or args.export_npz
+                      else args.scene)
         scene = load_scene(source, overrides)
         plan = _plan(args, scene)
+        if args.export_npz:
+            from pipeline.run.shotfile import scene_record
+
+            plan.record = scene_record(source if isinstance(source, SceneFile)
+                                       else SceneFile.read(source), overrides)
         from pipeline.view.framing import Framing
 
         # a scene with no camera is framed over the whole shot: simulated ahead (_ahead)
@@ -341,16 +355,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     t0 = time.perf_counter()
     if npz_w is not None:
-        spf = scene.simulation.steps_per_frame
-        npz_w.set_meta(
-            times=np.array(plan.out_times, np.float64),
-            sim_frames=np.array(plan.sim_frames, np.int64),
-            sim_times=np.array([j / plan.sim_fps for j in plan.sim_frames], np.float64),
-            **cloth_faces(scene, model, scene_meshes),
-            grid=np.array([model.nh, model.nw], np.int64),
-            fps=np.float64(plan.fps), sim_fps=np.float64(plan.sim_fps),
-            steps_per_frame=np.int64(spf),
-        )
+        npz_w.set_meta(**npz_meta(plan, scene, model, scene_meshes))
     timers.encode += time.perf_counter() - t0
     notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
     if sim.system.contact is not None:
@@ -358,6 +363,20 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
         notes.append(contact_summary(sim.system.contact, sim.system.steps_per_frame))
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
+
+
+def npz_meta(plan: Plan, scene, model, scene_meshes) -> dict:
+    """The --export-npz arrays besides the positions (pipeline.run.shotfile)."""
+    spf = scene.simulation.steps_per_frame
+    return {
+        "times": np.array(plan.out_times, np.float64),
+        "sim_frames": np.array(plan.sim_frames, np.int64),
+        "sim_times": np.array([j / plan.sim_fps for j in plan.sim_frames], np.float64),
+        **cloth_faces(scene, model, scene_meshes),
+        "grid": np.array([model.nh, model.nw], np.int64),
+        "fps": np.float64(plan.fps), "sim_fps": np.float64(plan.sim_fps),
+        "steps_per_frame": np.int64(spf), **plan.record,
+    }
 
 
 def cloth_faces(scene, model, scene_meshes) -> dict:

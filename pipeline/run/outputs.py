@@ -758,7 +758,9 @@ class NpzWriter(_Atomic):
     Arrays: positions (F, N, 3) float64, times (F,) output times in seconds,
     sim_times (F,) times of the simulator frames shown, sim_frames (F,) their indices,
     faces (T, 3) int32 cloth triangles, uv (N, 2) float64, grid (2,) = (nh, nw), (0, 0)
-    for a mesh cloth, which also has face_uv (T, 3, 2), the uv of each face corner.
+    for a mesh cloth, which also has face_uv (T, 3, 2), the uv of each face corner; and
+    what `render` adds by set_meta: fps, sim_fps, steps_per_frame and the scene record
+    that `render --from` reads (pipeline.run.shotfile: npz_format, scene_*).
     Positions are kept in memory (N * 24 bytes per frame) until commit.
     """
 
