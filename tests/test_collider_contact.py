@@ -65,7 +65,7 @@ def _to_rest(obj, points: np.ndarray, t: float) -> np.ndarray:
     return (points - pivot - shift) @ r + pivot
 
 
-def violations(contact: str, kind: str, steps: int = 150):
+def violations(contact: str, kind: str, steps: int = 90):
     """(inside, edges through, paths through) summed over every step, and the Simulation."""
     sim = Simulation(projectile_scene(contact, kind))
     obj = sim.scene.colliders[0]
