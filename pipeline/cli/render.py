@@ -175,6 +175,26 @@ class _Timers:
         self.encode = 0.0
 
 
+def write_frame(writers: tuple, img, pos, t_sim: float, scene, model, timers, names,
+                scene_meshes):
+    """One frame to its outputs (out, obj, npz writers; None where absent): the image, the
+    scene's meshes at t_sim, the positions; returns the meshes' names (made once)."""
+    out_w, obj_w, npz_w = writers
+    if out_w is not None:
+        t0 = time.perf_counter()
+        out_w.add(img)
+        timers.encode += time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if obj_w is not None:
+        meshes = scene_meshes(scene, pos, model, t_sim)
+        if names is None:
+            names = outputs.mesh_names(meshes, scene)
+        obj_w.add(meshes, names)
+    if npz_w is not None:
+        npz_w.add(pos)
+    timers.encode += time.perf_counter() - t0
+    return names
+
 def _open_writers(plan: Plan, args) -> dict:
     """Create every output's temp file/folder now: proves the paths are writable."""
     w = {}
@@ -320,23 +340,14 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     def consume(k, pos):
         nonlocal names, first_img
         t_sim = plan.sim_frames[k] / plan.sim_fps  # keyframed colliders are drawn there
+        img = None
         if out_w is not None:
             if k == 0 and first_img is not None:
                 img, first_img = first_img, None
             else:
                 img = render(pos, t_sim)
-            t0 = time.perf_counter()
-            out_w.add(img)
-            timers.encode += time.perf_counter() - t0
-        t0 = time.perf_counter()
-        if obj_w is not None:
-            meshes = scene_meshes(scene, pos, model, t_sim)
-            if names is None:
-                names = outputs.mesh_names(meshes, scene)
-            obj_w.add(meshes, names)
-        if npz_w is not None:
-            npz_w.add(pos)
-        timers.encode += time.perf_counter() - t0
+        names = write_frame((out_w, obj_w, npz_w), img, pos, t_sim, scene, model, timers,
+                            names, scene_meshes)
         out_bar.update(1)
 
     mode = _pipeline_mode(args.pipeline, framed=framing is not None)

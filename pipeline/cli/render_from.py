@@ -25,7 +25,7 @@ from pipeline.run.errors import UsageError
 from .messages import Errors, one_line
 from .render import (Plan, _open_writers, _read_golden, _Timers, check_shader, cloth_faces,
                      finish, nearest_sim_frames, npz_meta, output_kind, output_times,
-                     scene_overrides)
+                     scene_overrides, write_frame)
 
 
 class FromError(UsageError):
@@ -191,23 +191,14 @@ def _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
         for j in plan.sim_frames:
             pos = shot.positions[shot.frame_of(j)]
             t_sim = j / plan.sim_fps  # keyframed colliders are drawn there, as when simulated
+            img = None
             if out_w is not None:
                 t0 = time.perf_counter()
                 img = render_frame(scene, pos, model, shader=plan.shader, width=plan.width,
                                    height=plan.height, aa=plan.aa, time=t_sim, shot=framing)
                 timers.render += time.perf_counter() - t0
-                t0 = time.perf_counter()
-                out_w.add(img)
-                timers.encode += time.perf_counter() - t0
-            t0 = time.perf_counter()
-            if obj_w is not None:
-                meshes = scene_meshes(scene, pos, model, t_sim)
-                if names is None:
-                    names = outputs.mesh_names(meshes, scene)
-                obj_w.add(meshes, names)
-            if npz_w is not None:
-                npz_w.add(pos)
-            timers.encode += time.perf_counter() - t0
+            names = write_frame((out_w, obj_w, npz_w), img, pos, t_sim, scene, model, timers,
+                                names, scene_meshes)
             out_bar.update(1)
     finally:
         out_bar.close()
