@@ -108,7 +108,7 @@ def case_scene(case: str, tmp_path) -> dict:
     return grid_scene(model) if where == "grid" else curved_mesh_scene(tmp_path, model)
 
 
-@pytest.mark.parametrize("case", CASES)
+@pytest.mark.parametrize("case", ["grid classic", "mesh fem"])  # each model, each cloth
 def test_many_iterations_give_the_converged_backward_euler_step(case, tmp_path):
     """The issue's check: with many iterations one VBD step is backward Euler's step of the
     same model (Newton to convergence, scipy's direct solve) to 1e-8 m, from a near-rest
