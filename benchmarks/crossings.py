@@ -208,6 +208,10 @@ def _pair_distances_py(p, tris, vi, ti, edges, ei, ej):
 
 _pair_distances = _pair_distances_py
 if numba is not None:
+    @numba.njit(cache=False)
+    def _xyz(p, i):
+        return p[i, 0], p[i, 1], p[i, 2]
+
     @numba.njit(cache=False, fastmath=False)
     def _nb_point_segment(px, py, pz, ax, ay, az, bx, by, bz):
         ux, uy, uz = bx - ax, by - ay, bz - az
@@ -221,10 +225,10 @@ if numba is not None:
 
     @numba.njit(cache=False)
     def _nb_seg_seg(p, a0, a1, b0, b1):
-        p1x, p1y, p1z = p[a0, 0], p[a0, 1], p[a0, 2]
-        q1x, q1y, q1z = p[a1, 0], p[a1, 1], p[a1, 2]
-        p2x, p2y, p2z = p[b0, 0], p[b0, 1], p[b0, 2]
-        q2x, q2y, q2z = p[b1, 0], p[b1, 1], p[b1, 2]
+        p1x, p1y, p1z = _xyz(p, a0)
+        q1x, q1y, q1z = _xyz(p, a1)
+        p2x, p2y, p2z = _xyz(p, b0)
+        q2x, q2y, q2z = _xyz(p, b1)
         d = min(min(_nb_point_segment(p1x, p1y, p1z, p2x, p2y, p2z, q2x, q2y, q2z),
                     _nb_point_segment(q1x, q1y, q1z, p2x, p2y, p2z, q2x, q2y, q2z)),
                 min(_nb_point_segment(p2x, p2y, p2z, p1x, p1y, p1z, q1x, q1y, q1z),
@@ -250,10 +254,10 @@ if numba is not None:
 
     @numba.njit(cache=False)
     def _nb_pt_tri(p, v, i0, i1, i2):
-        px, py, pz = p[v, 0], p[v, 1], p[v, 2]
-        ax, ay, az = p[i0, 0], p[i0, 1], p[i0, 2]
-        bx, by, bz = p[i1, 0], p[i1, 1], p[i1, 2]
-        cx, cy, cz = p[i2, 0], p[i2, 1], p[i2, 2]
+        px, py, pz = _xyz(p, v)
+        ax, ay, az = _xyz(p, i0)
+        bx, by, bz = _xyz(p, i1)
+        cx, cy, cz = _xyz(p, i2)
         d = min(min(_nb_point_segment(px, py, pz, ax, ay, az, bx, by, bz),
                     _nb_point_segment(px, py, pz, bx, by, bz, cx, cy, cz)),
                 _nb_point_segment(px, py, pz, cx, cy, cz, ax, ay, az))

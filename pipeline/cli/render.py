@@ -167,7 +167,7 @@ def fmt_bytes(n: int) -> str:
     return f"{n} B"
 
 
-class _Timers:
+class Timers:
     def __init__(self):
         self.compile = 0.0  # a first run's kernel compiling (pipeline.run.warmup)
         self.simulate = 0.0
@@ -195,7 +195,7 @@ def write_frame(writers: tuple, img, pos, t_sim: float, scene, model, timers, na
     timers.encode += time.perf_counter() - t0
     return names
 
-def _open_writers(plan: Plan, args) -> dict:
+def open_writers(plan: Plan, args) -> dict:
     """Create every output's temp file/folder now: proves the paths are writable."""
     w = {}
     try:
@@ -218,7 +218,7 @@ def _open_writers(plan: Plan, args) -> dict:
     return w
 
 
-def _read_golden(path: str) -> np.ndarray:
+def read_golden(path: str) -> np.ndarray:
     from PIL import Image, UnidentifiedImageError
 
     try:
@@ -249,7 +249,7 @@ def run(args, err: Errors, source=None) -> int:
     if on_cluster and (args.export_obj or args.export_npz):
         raise UsageError("--export-obj and --export-npz are not available with --workers or "
                          "--scheduler")
-    golden = _read_golden(args.check) if args.check else None
+    golden = read_golden(args.check) if args.check else None
     overrides = scene_overrides(args)
     with warnings.catch_warnings():
         # Python warnings (e.g. StabilityWarning) become one line "render: warning: ...".
@@ -271,7 +271,7 @@ def run(args, err: Errors, source=None) -> int:
         # a scene with no camera is framed over the whole shot: simulated ahead (_ahead)
         framing = (Framing(plan.width, plan.height)
                    if scene.camera is None and plan.kind is not None else None)
-        writers = _open_writers(plan, args)
+        writers = open_writers(plan, args)
         try:
             if on_cluster:
                 return render_on_cluster(args, err, source, overrides, plan, writers, golden,
@@ -300,7 +300,7 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
              framing, t_wall, compile_seconds) -> int:
     """The render of `run` once the Simulation is built and its kernels compiled (in
     `compile_seconds`)."""
-    timers = _Timers()
+    timers = Timers()
     model = sim.model
     out_w = writers.get("out")
     obj_w = writers.get("obj")
@@ -402,7 +402,7 @@ def cloth_faces(scene, model, scene_meshes) -> dict:
             "uv": np.asarray(cloth.uvs, np.float64)}
 
 
-def finish(args, err: Errors, plan: Plan, writers: dict, golden, timers: _Timers,
+def finish(args, err: Errors, plan: Plan, writers: dict, golden, timers: Timers,
            t_wall: float, notes: Sequence[str] = ()) -> int:
     """Commit every output, then --check, the H.264 padding warning, the summary line and
     `notes` (lines after it); returns 0 or 3 (--check beyond tolerance)."""
@@ -437,7 +437,7 @@ def finish(args, err: Errors, plan: Plan, writers: dict, golden, timers: _Timers
     return status
 
 
-def _simulate(sim, frames: Sequence[int], timers: _Timers, sim_bar):
+def _simulate(sim, frames: Sequence[int], timers: Timers, sim_bar):
     """Advance the simulation through `frames` (ascending simulator frames); yield
     (k, positions copy) at each frames[k]."""
     current = 0
@@ -451,7 +451,7 @@ def _simulate(sim, frames: Sequence[int], timers: _Timers, sim_bar):
         yield k, sim.positions.copy()
 
 
-def _ahead(sim, plan: Plan, scene, framing, timers: _Timers, sim_bar):
+def _ahead(sim, plan: Plan, scene, framing, timers: Timers, sim_bar):
     """Simulate the whole shot before anything is drawn: every frame of it goes to
     `framing` (pipeline.view.framing), the frames to draw to a temporary file (memory stays
     flat however long the shot; nothing is left behind). Then yield (k, positions) of the
@@ -631,7 +631,7 @@ def render_on_cluster(args, err, scene_file, overrides, plan, writers, golden, f
     from pipeline.cluster.farm import (DEPTH_PER_THREAD, Shot, chunk_size, frame_shot_here,
                                        next_chunk, simulate_shot)
 
-    timers = _Timers()
+    timers = Timers()
     out_w = writers["out"]
     view = dict(shader=plan.shader, width=plan.width, height=plan.height, aa=plan.aa)
     if framing is not None:

@@ -23,7 +23,7 @@ from pipeline.run import outputs
 from pipeline.run.errors import UsageError
 
 from .messages import Errors, one_line
-from .render import (Plan, _open_writers, _read_golden, _Timers, check_shader, cloth_faces,
+from .render import (Plan, open_writers, read_golden, Timers, check_shader, cloth_faces,
                      finish, nearest_sim_frames, npz_meta, output_kind, output_times,
                      scene_overrides, write_frame)
 
@@ -75,7 +75,7 @@ def run_from(args, err: Errors, t_wall: float) -> int:
 
     refuse_flags(args)
     kind, out = output_kind(args)
-    golden = _read_golden(args.check) if args.check else None
+    golden = read_golden(args.check) if args.check else None
     shot = read_shot(args.from_npz)
     if args.scene is not None:  # the scene named, as it is now, and this run's --set
         source, overrides = SceneFile.read(args.scene), scene_overrides(args)
@@ -107,7 +107,7 @@ def run_from(args, err: Errors, t_wall: float) -> int:
         framing = Framing(plan.width, plan.height)
         for j in plan.shot_frames:
             framing.add(framed_points(scene, shot.positions[shot.frame_of(j)], j / plan.sim_fps))
-    writers = _open_writers(plan, args)
+    writers = open_writers(plan, args)
     try:
         return _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
                      render_frame, scene_meshes)
@@ -181,7 +181,7 @@ def plan_from(args, kind, out, scene, shot) -> Plan:
 def _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
           render_frame, scene_meshes) -> int:
     """Draw, export and encode every planned frame from the NPZ's positions."""
-    timers = _Timers()
+    timers = Timers()
     out_w, obj_w, npz_w = (writers.get(key) for key in ("out", "obj", "npz"))
     names = None
     from pipeline.run.progress import bar, progress_enabled

@@ -172,23 +172,6 @@ def _box_entry(prm, s, e):
     return enter, nx, ny, nz
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _box_out(prm, q):
-    """q moved out through the nearest face to SURFACE_GAP outside; False when not inside."""
-    l = _box_local(prm, q)
-    best, face = np.inf, -1
-    for k in range(3):
-        depth = prm[12 + k] - abs(l[k])
-        if not depth > 0.0:
-            return False, q[0], q[1], q[2]
-        if depth < best:
-            best, face = depth, k
-    sign = 1.0 if l[face] >= 0.0 else -1.0
-    nx, ny, nz = _box_axis(prm, face, sign)
-    move = best + SURFACE_GAP
-    return True, q[0] + move * nx, q[1] + move * ny, q[2] + move * nz
-
-
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _unit(k):
     """The unit vector of axis k (0, 1, 2)."""
@@ -253,9 +236,10 @@ def _box_face(prm, a, b, c):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _paths(x, x0, inv_mass, stats, kind, prm, frame, k):
-    """Stage 1 for collider k (a sphere or a box: kind, parameter row prm) on every free
+def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
+    """Stage 1 for collider k (a sphere or a box: kind, parameter rows params) on every free
     point; returns points moved."""
+    prm = params[k]
     friction = prm[4] if kind == sphere.KIND else prm[15]
     keep = 1.0 - friction
     moved = 0
@@ -281,7 +265,7 @@ def _paths(x, x0, inv_mass, stats, kind, prm, frame, k):
         if kind == sphere.KIND:
             inside, qx, qy, qz = _sphere_out(prm, q)
         else:
-            inside, qx, qy, qz = _box_out(prm, q)
+            inside, qx, qy, qz = box.outside(params, k, q[0], q[1], q[2])
         if inside:
             stats[MOVED_OUT] += 1.0
         if u >= 0.0 or inside:
@@ -350,8 +334,9 @@ def _rotate(pose, k, nx, ny, nz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _pinned_inside(x, inv_mass, kind, prm, frame, k):
+def _pinned_inside(x, inv_mass, kind, params, frame, k):
     """The first pinned point inside collider k, or -1."""
+    prm = params[k]
     for p in range(x.shape[1]):
         if inv_mass[p] != 0.0:
             continue
@@ -359,7 +344,7 @@ def _pinned_inside(x, inv_mass, kind, prm, frame, k):
         if kind == sphere.KIND:
             inside = _sphere_out(prm, q)[0]
         else:
-            inside = _box_out(prm, q)[0]
+            inside = box.outside(params, k, q[0], q[1], q[2])[0]
         if inside:
             return p
     return -1
@@ -379,16 +364,16 @@ def robust_colliders(x, x0, c, table):
         if table.active[k] == 0 or (kind != sphere.KIND and kind != box.KIND):
             continue
         prm = table.params[k]
-        moved += _paths(x, x0, inv_mass, stats, kind, prm, frame, k)
+        moved += _paths(x, x0, inv_mass, stats, kind, table.params, frame, k)
         for r in range(FACE_ROUNDS + 1):  # the last round only looks
-            through, stuck = _faces(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind, prm, frame, k,
-                                    r < FACE_ROUNDS)
+            through, stuck = _faces(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind,
+                                    prm, frame, k, r < FACE_ROUNDS)
             if through == 0:
                 break
             moved += through
         if through + stuck > 0:  # still in it after the rounds, or held in it by pins
             stats[NOT_KEPT] += 1.0
-        pin = _pinned_inside(x, inv_mass, kind, prm, frame, k)
+        pin = _pinned_inside(x, inv_mass, kind, table.params, frame, k)
         if pin >= 0:
             stats[NOT_KEPT] += 1.0
             if stats[PIN_POINT] < 0.0:

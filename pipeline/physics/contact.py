@@ -66,6 +66,7 @@ class RobustContact(NamedTuple):
     frozen: np.ndarray  # (N,) uint8 scratch
     box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
     bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash
+    bucket_work: np.ndarray  # (2, H) int64 scratch of _build: each bucket's fill, last box
     entries: np.ndarray  # (cap,) int64 scratch of the hash: the primitives, by bucket
     entry_box: np.ndarray  # (9, cap) scratch: their boxes in the same order (read in turn),
     #                        then the cell of each box's lower corner
@@ -103,7 +104,8 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.ascontiguousarray(rest, dtype=np.float64), inv,
                       np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(m, np.uint8),
                       np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
-                      np.zeros(size + 1, np.int64), np.zeros(4 * size, np.int64),
+                      np.zeros(size + 1, np.int64), np.zeros((2, size), np.int64),
+                      np.zeros(4 * size, np.int64),
                       np.zeros((9, 4 * size)), np.zeros(4),
                       np.zeros((LISTED_PER_POINT * m, 5), np.int64),
                       np.zeros(LISTED_PER_POINT * m), np.full(1, -1, np.int64),
@@ -181,14 +183,15 @@ def _boxes(x0, x1, prims, margin, box):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _build(box, count, cell, bucket_start, entries, entry_box):
+def _build(box, count, cell, bucket_start, work, entries, entry_box):
     """Hash `count` boxes into cells of side `cell`; False if the entries do not fit. A box
     goes once into each bucket, however many of its cells hash there (a second copy would
     make its pairs twice)."""
     size = bucket_start.shape[0] - 1
     mask = size - 1
     bucket_start[:] = 0
-    last = np.full(size, -1, np.int64)  # the last box put in each bucket
+    fill, last = work[0], work[1]  # each bucket's next slot, the last box put in it
+    last[:] = -1
     total = 0
     for k in range(count):
         lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
@@ -205,7 +208,8 @@ def _build(box, count, cell, bucket_start, entries, entry_box):
         return False
     for b in range(size):
         bucket_start[b + 1] += bucket_start[b]
-    fill = bucket_start[:-1].copy()
+    for b in range(size):
+        fill[b] = bucket_start[b]
     last[:] = -1
     for k in range(count):
         lo = (math.floor(box[0, k] / cell), math.floor(box[1, k] / cell), math.floor(box[2, k] / cell))
@@ -263,7 +267,8 @@ def _visit(x0, x1, c, mode, cell):
     # point-triangle: hash the triangles, query each point's swept box (cells doubled
     # until the entries fit)
     _boxes(x0, x1, tris, margin, c.box)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
+                         c.entry_box):
         cell *= 2.0
     mask = c.bucket_start.shape[0] - 2
     ids = np.zeros(5, np.int64)
@@ -292,7 +297,8 @@ def _visit(x0, x1, c, mode, cell):
                         acted += _collect(x1, c, ids) if mode == 3 else _pair(x0, x1, c, mode, ids)
     # edge-edge: hash the edges, query each edge's swept box against later edges
     _boxes(x0, x1, edges, 0.5 * margin, c.box)
-    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
+    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
+                         c.entry_box):
         cell *= 2.0
     box = c.box
     for e1 in range(edges.shape[0]):
@@ -611,7 +617,8 @@ def tangles(x, c, out):
     tris, edges = c.triangles, c.edges
     cell = _boxes(x, x, tris, 0.0, c.box)
     cell = max(cell, 1e-12)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.entries, c.entry_box):
+    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
+                         c.entry_box):
         cell *= 2.0
     mask = c.bucket_start.shape[0] - 2
     box = c.box
