@@ -72,25 +72,30 @@ def powf(x, p):
 
 
 @njit(cache=True, inline="always")
-def light_terms(p, n, v, lp, li):
-    """(I / r^2 (rgb tuple), max(0, n.l), max(0, n.h)) for a point light at lp."""
+def light_terms(p, n, v, lp, li, vis):
+    """(vis I / r^2 (rgb tuple), max(0, n.l), max(0, n.h)) for a point light at lp seen
+    with visibility vis (1: unshadowed; exactly I / r^2 then)."""
     d = sub(lp, p)
     r2 = dot(d, d)
     inv = 1.0 / r2 if r2 > 0.0 else 0.0
     ir = math.sqrt(inv)
     l = (d[0] * ir, d[1] * ir, d[2] * ir)
     h = normalize((l[0] + v[0], l[1] + v[1], l[2] + v[2]))
-    return (li[0] * inv, li[1] * inv, li[2] * inv), max(0.0, dot(n, l)), max(0.0, dot(n, h))
+    return ((li[0] * inv * vis, li[1] * inv * vis, li[2] * inv * vis), max(0.0, dot(n, l)),
+            max(0.0, dot(n, h)))
 
 
 @njit(**STAGE, no_cpython_wrapper=True)
-def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp):
-    """k_a I_a + k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p."""
-    e, ndl, ndh = light_terms(p, n, v, lp, li)
+def blinn_phong(p, n, v, kd, lp, li, ka, ia, ks, pexp, lit):
+    """k_a I_a ao + (k_d I/r^2 max(0, n.l) + k_s I/r^2 max(0, n.h)^p) vis, where
+    lit = (vis, ao): the light's visibility (shadows) and the ambient occlusion factor,
+    both 1 without shadows and occlusion (the SPEC 5 colour, bit for bit)."""
+    e, ndl, ndh = light_terms(p, n, v, lp, li, lit[0])
     spec = ks * powf(ndh, pexp)
-    return (ka * ia[0] + kd[0] * e[0] * ndl + spec * e[0],
-            ka * ia[1] + kd[1] * e[1] * ndl + spec * e[1],
-            ka * ia[2] + kd[2] * e[2] * ndl + spec * e[2])
+    ao = lit[1]
+    return (ka * ia[0] * ao + kd[0] * e[0] * ndl + spec * e[0],
+            ka * ia[1] * ao + kd[1] * e[1] * ndl + spec * e[1],
+            ka * ia[2] * ao + kd[2] * e[2] * ndl + spec * e[2])
 
 
 @njit(**STAGE, no_cpython_wrapper=True)

@@ -7,24 +7,24 @@ image) for one image size, so rendering a frame allocates nothing large.
 `params` (all optional): the shader constants (SPEC 5 names: k_a, I_a, k_s, p, k_h,
 k_n, ...; see each shader's PARAMS), "background" (rgb), "texture", "height_map" (image
 paths or (h,w,3) arrays), "cubemap" (folder with posx..negz.png or a (6,s,s,3) array),
-"light_position", "light_intensity" (override `light`). Unknown keys are ignored.
+"light_position", "light_intensity", "light_radius" (override `light`), "shadows" (bool),
+"shadow_map_size" (texels, default 1024). Unknown keys are ignored.
 """
 from __future__ import annotations
 
 import math
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
 from clothjit import njit
 
-from . import raster as R
 from .camera import Camera
-from .shade import Frame, fragment_stage, uncached_fragment_stage
+from .shade import Frame, fetch, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
+from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, light_visibility
 from .textures import resolve
+from .visibility import VisibilityBuffer, run_groups
 
 DEFAULT_LIGHT_POSITION = (0.5, 2.0, 2.0)
 DEFAULT_LIGHT_INTENSITY = (3.0, 3.0, 3.0)
@@ -33,6 +33,9 @@ _DUMMY_TEX = np.zeros((1, 1, 3))
 _DUMMY_CUBE = np.zeros((6, 1, 1, 3))
 _DUMMY_TEX.flags.writeable = False  # same numba type as loaded (read-only) textures
 _DUMMY_CUBE.flags.writeable = False
+_OFF = np.ones(0, np.float32)  # Frame.occ without ambient occlusion
+_NO_SHADOW_MAP = (np.ones((0, 1, 1), np.float32), np.zeros((0, 3, 4)), np.zeros(0),
+                  np.zeros(0), 0.0)  # Frame's shadow-map fields without shadows
 VA_COLS = 12  # position 0:3, normal 3:6, uv 6:8, tangent 8:11 (shade.Frame.va)
 
 
@@ -86,6 +89,17 @@ def _pack_prims(verts, obj_of, p0, idx, v0, obj):
         obj_of[p0 + k] = obj
 
 
+@njit(cache=True)
+def _sample_visibility(f, out):
+    for s in range(f.prim.shape[0]):
+        m = f.prim[s]
+        if m >= 0:
+            p, n0, v, _, _, _ = fetch(f, s)
+            out[s] = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius, f.va,
+                                      (f.verts[m, 0], f.verts[m, 1], f.verts[m, 2]), f.lp, p,
+                                      n0, v)
+
+
 def _grow(arr, n, shape_tail=(), dtype=None):
     if arr is not None and arr.shape[0] >= n:
         return arr
@@ -105,39 +119,21 @@ class Renderer:
             raise ValueError(f"aa must be >= 1, got {aa}")
         self.width, self.height, self.aa = int(width), int(height), aa
         self.sw, self.sh = self.width * aa, self.height * aa
-        ns = self.sw * self.sh
-        # visibility buffer (raster.py); rowlo/rowhi = the whole row: first frame clears all
-        self.depth = np.full(ns, np.inf)
-        self.prim = np.full(ns, -1, np.int32)
-        self.bary = np.zeros((ns, 2), np.float32)
-        self.rowlo = np.zeros(self.sh, np.int32)
-        self.rowhi = np.full(self.sh, self.sw - 1, np.int32)
-        self.count = np.zeros(1, np.int32)  # replaced by a per-sample buffer on demand
+        self.view = VisibilityBuffer(self.sw, self.sh)  # the camera's
         self.image = np.empty((self.height, self.width, 3), np.uint8)
-        self.band_h = R.BAND
-        self.nb = (self.sh + self.band_h - 1) // self.band_h
-        self.band_start = np.zeros(self.nb + 1, np.int64)
-        self.items = np.empty(1024, np.int64)
-        self._prims(1024)
-        self.va = self.clip = self.vcode = self.vx = self.vy = self.vz = self.viw = None
+        self.va = None
         self.verts = self.obj_of = self.disp = None
-        self.wb = np.empty((256, 3))
-        self.n_prims = 0
+        self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
+        self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
+        self.frame = None  # the last frame's shade.Frame
         self.threads = None  # None: numba.get_num_threads() (NUMBA_NUM_THREADS)
 
-    def _prims(self, cap):
-        self.pv = np.empty((cap, 3), np.int32)
-        self.pflag = np.empty(cap, np.int8)
-        self.psrc = np.empty(cap, np.int32)
-        self.pbox = np.empty((cap, 4), np.int64)
-
-    def _vertices(self, cap):
-        """Window-space vertex slots: the mesh vertices, then the ones made by clipping."""
-        self.vx = np.empty(cap, np.int64)
-        self.vy = np.empty(cap, np.int64)
-        self.vz = np.empty(cap)
-        self.viw = np.empty(cap)
-        self.wb = np.empty((cap, 3))  # row e: source weights of slot nv + e (<= cap)
+    # the camera's visibility buffer, as the tests and debugging aids read it
+    depth = property(lambda self: self.view.depth)
+    prim = property(lambda self: self.view.prim)
+    bary = property(lambda self: self.view.bary)
+    count = property(lambda self: self.view.count)
+    n_prims = property(lambda self: self.view.n_prims)
 
     def _gather(self, meshes, shader, prm, hmap):
         lines = shader.primitive == "lines"
@@ -151,13 +147,10 @@ class Renderer:
         if self.va is None or self.va.shape[0] < nv:
             self.va = _grow(self.va, nv, (VA_COLS,), np.float64)
             self.va[:, 11] = 0.0
-            self.clip = np.empty((self.va.shape[0], 4))
-            self.vcode = np.empty(self.va.shape[0], np.int32)
-        if self.vx is None or self.vx.shape[0] < nv + 64:
-            self._vertices(nv + max(1024, nv // 4))
         self.verts = _grow(self.verts, max(npr, 1), (3,), np.int32)
         self.obj_of = _grow(self.obj_of, max(npr, 1), (), np.int32)
         kd = np.empty((max(len(meshes), 1), 3))
+        self.casts = np.empty(len(meshes), bool)
         va, verts = self.va, self.verts
         v = p = 0
         for i, m in enumerate(meshes):
@@ -177,6 +170,7 @@ class Renderer:
                 _pack_prims(verts, self.obj_of, p, _ro(m.triangles), v, i)
                 p += k
             kd[i] = m.colour
+            self.casts[i] = m.name != "plane"
             v += n
         return nv, npr, kd
 
@@ -187,7 +181,9 @@ class Renderer:
         count_coverage=True also fills self.count (per sample, row-major) with the number
         of fragments each sample received (before the depth test): a debugging aid.
         timings: a dict that receives the seconds spent in each stage ("prepare",
-        "gather", "geometry" = project + setup + binning, "raster", "shade").
+        "gather", "geometry" = project + setup + binning, "raster", "shadows", "shade").
+        With params["shadows"], `light_visibility()` then gives each sample's visibility
+        of the light, as the shaders saw it (shadow.py).
         """
         clock = time.perf_counter if timings is not None else None
         if clock:
@@ -206,10 +202,15 @@ class Renderer:
             else DEFAULT_LIGHT_POSITION
         li = getattr(light, "intensity", DEFAULT_LIGHT_INTENSITY) if light is not None \
             else DEFAULT_LIGHT_INTENSITY
+        radius = getattr(light, "radius", DEFAULT_RADIUS) if light is not None else DEFAULT_RADIUS
         lp = _vec3(params.get("light_position", lp), "light position")
         li = _vec3(params.get("light_intensity", li), "light intensity")
+        radius = float(params.get("light_radius", radius))
+        if not (math.isfinite(radius) and radius >= 0.0):
+            raise ValueError(f"light radius must be a number >= 0, got {radius!r}")
         bg = _vec3(params.get("background", DEFAULT_BACKGROUND), "background")
         lines = sh.primitive == "lines"
+        shadows = bool(params.get("shadows", False)) and not lines
         key = sh.stage_key()
         stage = fragment_stage if key >= 0 else uncached_fragment_stage
         if clock:
@@ -217,81 +218,51 @@ class Renderer:
         nv, npr, kd = self._gather(meshes, sh, prm, hmap)
         if clock:
             t2 = clock()
-        W, H = self.sw, self.sh
-        vp = camera.view_projection()
-        setup = R.setup_lines if lines else R.setup_triangles
-        extra = (self.aa,) if lines else ()
-        projected = None
-        while True:
-            if projected is not self.vx:  # (again if the vertex slots were reallocated)
-                R.project(self.va[:nv], vp, W, H, self.clip, self.vcode, self.vx, self.vy,
-                          self.vz, self.viw)
-                projected = self.vx
-            m, e = setup(self.verts[:npr], self.clip, self.vcode, nv, W, H, *extra, self.vx,
-                         self.vy, self.vz, self.viw, self.wb, self.pv, self.pflag, self.psrc,
-                         self.pbox, self.band_start)
-            if m <= self.pv.shape[0] and nv + e <= self.vx.shape[0]:
-                break
-            if m > self.pv.shape[0]:
-                self._prims(int(m * 1.25) + 16)
-            if nv + e > self.vx.shape[0]:
-                self._vertices(nv + int(e * 1.25) + 16)
-        self.n_prims = m
-        while True:
-            total = R.bin_prims(self.pbox, m, self.nb, self.band_start, self.items)
-            if total <= self.items.shape[0]:
-                break
-            self.items = np.empty(int(total * 1.25) + 16, np.int64)
-        if count_coverage and self.count.shape[0] != self.depth.shape[0]:
-            self.count = np.zeros(self.depth.shape[0], np.int32)
         groups = self.threads or numba.get_num_threads()
+        self.view.draw(self.va, nv, self.verts, npr, camera.view_projection(), groups,
+                       lines_aa=self.aa if lines else 0, count_coverage=count_coverage,
+                       timings=timings)
         if clock:
             t3 = clock()
-        common = (self.nb, W, H, nv, self.band_start, self.items, self.pv, self.pflag,
-                  self.psrc, self.pbox, self.vx, self.vy, self.vz, self.viw, self.wb,
-                  self.depth, self.prim, self.bary, self.rowlo, self.rowhi, self.count,
-                  bool(count_coverage))
-        if lines:
-            _run_groups(R.raster_lines, groups, (self.aa,) + common)
-        else:
-            _run_groups(R.raster_triangles, groups, common)
+        f = Frame(self.height, self.width, self.aa, groups, self.view.prim, self.view.bary,
+                  self.view.rowlo, self.view.rowhi, self.verts, self.obj_of, self.va, kd,
+                  camera.eye, lp, li, bg, self.image, _OFF, *_NO_SHADOW_MAP)
+        if shadows:
+            f = self._shadows(f, nv, npr, lp, radius, params, groups)
+        self.frame = f
         if clock:
             t4 = clock()
-        f = Frame(self.height, self.width, self.aa, groups, self.prim, self.bary, self.rowlo,
-                  self.rowhi, self.verts, self.obj_of, self.va, kd, camera.eye, lp, li, bg,
-                  self.image)
-        _run_groups(stage, groups, (f, prm, tex, hmap, cube, key), first=True)
+        run_groups(stage, groups, (f, prm, tex, hmap, cube, key), first=True)
         if clock:
             t5 = clock()
-            timings.update(prepare=t1 - t0, gather=t2 - t1, geometry=t3 - t2, raster=t4 - t3,
-                           shade=t5 - t4)
+            timings.update(prepare=t1 - t0, gather=t2 - t1, shadows=t4 - t3, shade=t5 - t4)
         return self.image
 
+    def _shadows(self, f, nv, npr, lp, radius, params, groups):
+        """Frame f with the shadow map of the meshes that cast shadows (all but planes),
+        which the fragment stage looks up (shadow.py)."""
+        size = int(params.get("shadow_map_size", MAP_SIZE))
+        if size < 16:
+            raise ValueError(f"shadow_map_size must be >= 16, got {size}")
+        if self.shadow_map is None or self.shadow_map.size != size:
+            self.shadow_map = ShadowMap(size)
+        verts = self.verts[:npr]
+        casting = self.casts[self.obj_of[:npr]]
+        if not casting.all():
+            verts = verts[casting]
+        used = np.unique(verts) if verts.shape[0] else np.empty(0, np.int64)
+        self.shadow_map.build(self.va, nv, verts, self.va[used, :3], lp, groups)
+        m = self.shadow_map
+        return f._replace(smap=m.lin, sviews=m.views, stanh=m.tanh, snear=m.near,
+                          sradius=radius)
 
-_pool = None
-_pool_lock = threading.Lock()
-
-
-def _run_groups(kernel, groups, args, first=False):
-    """kernel(g, groups, *args) for g in range(groups) (with first=True:
-    kernel(args[0], g, *args[1:]), the fragment-stage signature); group 0 on this thread,
-    the others on a thread pool (the kernels release the GIL; the pool's idle threads
-    sleep, they do not spin). Every row belongs to exactly one group."""
-    global _pool
-    if first:
-        call = lambda g: kernel(args[0], g, *args[1:])  # noqa: E731
-    else:
-        call = lambda g: kernel(g, groups, *args)  # noqa: E731
-    if groups == 1:
-        call(0)
-        return
-    with _pool_lock:
-        if _pool is None or _pool._max_workers < groups - 1:
-            _pool = ThreadPoolExecutor(max_workers=groups - 1, thread_name_prefix="render")
-    futs = [_pool.submit(call, g) for g in range(1, groups)]
-    call(0)
-    for fu in futs:
-        fu.result()
+    def light_visibility(self) -> np.ndarray:
+        """Per sample (row-major, float32) the light's visibility the last render's shaders
+        used: 1 without shadows and on the background (a debugging and testing aid)."""
+        out = np.ones(self.view.prim.shape[0], np.float32)
+        if self.frame is not None and self.frame.sviews.shape[0]:
+            _sample_visibility(self.frame, out)
+        return out
 
 
 _renderers: dict = {}

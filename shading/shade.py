@@ -48,6 +48,7 @@ from numba.extending import overload, typeof_impl
 from clothjit import STAGE, njit
 
 from .lighting import normalize
+from .shadow import light_visibility
 
 Frame = namedtuple("Frame", [
     "height", "width", "aa", "groups",  # output size, supersampling, row groups (threads)
@@ -58,6 +59,8 @@ Frame = namedtuple("Frame", [
     "kd",  # float64 (objects, 3)
     "eye", "lp", "li", "bg",  # 3-tuples of float
     "out",  # uint8 (height, width, 3)
+    "occ",  # float32 (S,): ambient occlusion factor per sample; (0,) when off
+    "smap", "sviews", "stanh", "snear", "sradius",  # shadow.ShadowMap's; 0 views when off
 ])
 
 ZERO = (0.0, 0.0, 0.0)
@@ -184,19 +187,19 @@ def shader_key(name: str, fragment, registered: bool) -> ShaderKey:
     return ShaderKey(key)
 
 
-def _colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def _colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     """The colour of a sample by shader `key` (a stub: numba compiles the overload)."""
     raise NotImplementedError("only callable from numba")
 
 
 @overload(_colour, inline="always", jit_options=dict(STAGE, cache=False))
-def _colour_overload(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def _colour_overload(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     if not isinstance(key, types.IntegerLiteral):
         return None  # numba retries with the literal
     fragment = _FRAGMENTS[key.literal_value]
 
-    def colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
-        return fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube)
+    def colour(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
+        return fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit)
     return colour
 
 
@@ -212,8 +215,15 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                     c = add(c, f.bg)
                 else:
                     p, n0, v, uv, t, kd = fetch(f, s)
+                    vis = 1.0
+                    if f.sviews.shape[0]:
+                        m = f.prim[s]
+                        vis = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
+                                               f.va, (f.verts[m, 0], f.verts[m, 1],
+                                                      f.verts[m, 2]), f.lp, p, n0, v)
+                    lit = (vis, np.float64(f.occ[s]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
-                                       cube))
+                                       cube, lit))
             put(f, y, x, c)
 
 

@@ -15,7 +15,7 @@ from shading import shade
 
 
 @njit(cache=True)
-def _flat(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def _flat(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return kd
 
 

@@ -130,6 +130,15 @@ def add_render_options(p: argparse.ArgumentParser, shaders: str) -> None:
                    help="image size in pixels (default: the scene's render size, 512x512)")
     p.add_argument("--aa", type=positive_int, metavar="N",
                    help="anti-aliasing: N x N samples per pixel (default: the scene's, 1)")
+    p.add_argument("--shadows", action="store_true", default=None,
+                   help="soft shadows from the light (same as --set render.shadows=true; "
+                        "light.radius sets the softness)")
+    p.add_argument("--ambient-occlusion", action="store_true", default=None,
+                   help="darken folds and contact (same as --set "
+                        "render.ambient_occlusion=true)")
+    p.add_argument("--look", choices=("course", "studio"),
+                   help="studio: shadows and ambient occlusion; course: neither (the SPEC 5 "
+                        "shaders exactly)")
     p.add_argument("--seed", type=int_arg, metavar="N",
                    help="random seed (same as --set simulation.seed=N)")
     p.add_argument("--integrator", metavar="NAME",
@@ -151,8 +160,9 @@ def add_render_options(p: argparse.ArgumentParser, shaders: str) -> None:
 
 
 #: The destinations of `add_render_options` (what `render batch` hands each scene's run).
-RENDER_OPTIONS = ("shader", "duration", "frames", "fps", "size", "aa", "seed", "integrator",
-                  "contact", "fidelity", "tolerance", "overrides")
+RENDER_OPTIONS = ("shader", "duration", "frames", "fps", "size", "aa", "shadows",
+                  "ambient_occlusion", "look", "seed", "integrator", "contact", "fidelity",
+                  "tolerance", "overrides")
 
 
 def add_cluster_options(p: argparse.ArgumentParser) -> None:

@@ -134,9 +134,17 @@ def check_shader(shader: str) -> None:
 
 
 def scene_overrides(args) -> list[str]:
-    """--set, --seed, --integrator, --contact, --fidelity, --tolerance and --size as scene
-    overrides."""
+    """--set, --look, --shadows, --ambient-occlusion, --seed, --integrator, --contact,
+    --fidelity, --tolerance and --size as scene overrides."""
     ov = list(args.overrides)
+    look = getattr(args, "look", None)
+    if look is not None:
+        on = "true" if look == "studio" else "false"
+        ov += [f"render.shadows={on}", f"render.ambient_occlusion={on}"]
+    if getattr(args, "shadows", None):
+        ov.append("render.shadows=true")
+    if getattr(args, "ambient_occlusion", None):
+        ov.append("render.ambient_occlusion=true")
     if args.seed is not None:
         ov.append(f"simulation.seed={args.seed}")
     if args.integrator is not None:

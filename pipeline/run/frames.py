@@ -109,10 +109,13 @@ def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:
 
 
 def render_params(scene: Scene, aa: int | None = None) -> dict:
-    """Renderer params from scene.render: shader constants, background, textures, aa."""
+    """Renderer params from scene.render: shader constants, background, textures, aa,
+    shadows and ambient occlusion."""
     rs = scene.render
     p = dict(rs.params)
     p["background"] = tuple(rs.background)
+    p["shadows"] = rs.shadows
+    p["ambient_occlusion"] = rs.ambient_occlusion
     p["aa"] = int(aa if aa is not None else rs.aa)
     for key in ("texture", "height_map", "cubemap"):
         v = getattr(rs, key)

@@ -282,7 +282,8 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
 
     li = data.get("light", {})
     light = LightSettings(position=_vec3(li.get("position", LightSettings.position)),
-                          intensity=_vec3(li.get("intensity", LightSettings.intensity)))
+                          intensity=_vec3(li.get("intensity", LightSettings.intensity)),
+                          radius=float(li.get("radius", LightSettings.radius)))
 
     r = data.get("render", {})
     rd = RenderSettings()
@@ -299,7 +300,8 @@ def _build(data: dict, base_dir: Path, src_path: Path | None) -> Scene:
         height=int(r.get("height", rd.height)), aa=int(r.get("aa", rd.aa)),
         background=_vec3(r.get("background", rd.background)),
         texture=path_of("texture"), height_map=path_of("height_map"), cubemap=path_of("cubemap"),
-        params=params,
+        shadows=bool(r.get("shadows", rd.shadows)),
+        ambient_occlusion=bool(r.get("ambient_occlusion", rd.ambient_occlusion)), params=params,
     )
     return Scene(cloth=cloth, colliders=tuple(colliders), wind=wind, simulation=simulation,
                  camera=camera, light=light, render=render, source=src_path)

@@ -228,6 +228,7 @@ class LightSettings:
 
     position: Vec3 = (0.5, 2.0, 2.0)
     intensity: Vec3 = (3.0, 3.0, 3.0)
+    radius: float = 0.02  # metres: the penumbra of soft shadows (render.shadows)
 
 
 @dataclass(frozen=True)
@@ -243,6 +244,8 @@ class RenderSettings:
     texture: Path | None = None  # None: the packaged default
     height_map: Path | None = None
     cubemap: Path | None = None  # folder with posx..negz images
+    shadows: bool = False  # shadow-mapped soft shadows (shading/shadow.py)
+    ambient_occlusion: bool = False  # screen-space ambient occlusion (shading/occlusion.py)
     # Shader constants overriding SPEC section 5 defaults: k_a, I_a, k_s, p, k_h, k_n, ...
     params: dict[str, Any] = field(default_factory=dict)
 

@@ -3,13 +3,16 @@
 A shader module defines `SHADER = Shader(...)`:
   name       the name used in scenes and on the command line (defaults to the module)
   fragment   an @njit(cache=True, inline="always") colour function
-             fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube) -> (r, g, b)
+             fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit) -> (r, g, b)
              p position, n0 = normalize(interpolated normal) (NOT yet two-sided: use
              lighting.two_sided(n0, v)), v unit vector to the eye, uv, t =
              normalize(interpolated tangent), kd object colour, lp / li light position
              and intensity (tuples), prm the packed params (float64 array, see
              `param_offsets`), tex (h,w,3) colour texture, hmap (h,w,3) height map (red
-             channel), cube (6,s,s,3) cube map. Colours are clamped by the caller.
+             channel), cube (6,s,s,3) cube map, lit = (vis, ao) the light's visibility
+             (shadows: it scales the diffuse and specular terms) and the ambient
+             occlusion factor (it scales the ambient term), both exactly 1 when off.
+             Colours are clamped by the caller.
   params     ordered defaults {name: float or 3-tuple}; `render(..., params)` overrides
   vertex     optional vertex stage vertex(positions, normals, uvs, prm, hmap) -> new
              positions (V,3), run on every mesh before projection

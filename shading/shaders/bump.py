@@ -10,9 +10,9 @@ K_A, I_A, K_S, P_EXP, K_H, K_N = param_offsets(PARAMS)
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     n = bump_normal(n0, t, v, uv, hmap, prm[K_H], prm[K_N])
-    return blinn_phong(p, n, v, kd, lp, li, prm[K_A], vec3(prm, I_A), prm[K_S], prm[P_EXP])
+    return blinn_phong(p, n, v, kd, lp, li, prm[K_A], vec3(prm, I_A), prm[K_S], prm[P_EXP], lit)
 
 
 SHADER = Shader("bump", fragment, PARAMS, textures=("height_map",), doc=__doc__)

@@ -6,8 +6,8 @@ from . import Shader
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
-    e, ndl, _ = light_terms(p, two_sided(n0, v), v, lp, li)
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
+    e, ndl, _ = light_terms(p, two_sided(n0, v), v, lp, li, lit[0])
     return (kd[0] * e[0] * ndl, kd[1] * e[1] * ndl, kd[2] * e[2] * ndl)
 
 

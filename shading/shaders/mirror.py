@@ -8,7 +8,7 @@ from . import Shader
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     n = two_sided(n0, v)
     d = 2.0 * dot(v, n)
     return sample_cube(cube, (d * n[0] - v[0], d * n[1] - v[1], d * n[2] - v[2]))

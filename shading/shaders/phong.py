@@ -9,9 +9,9 @@ K_A, I_A, K_S, P_EXP = param_offsets(PARAMS)
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return blinn_phong(p, two_sided(n0, v), v, kd, lp, li,
-                       prm[K_A], vec3(prm, I_A), prm[K_S], prm[P_EXP])
+                       prm[K_A], vec3(prm, I_A), prm[K_S], prm[P_EXP], lit)
 
 
 SHADER = Shader("phong", fragment, PARAMS, doc=__doc__)

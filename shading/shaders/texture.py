@@ -7,7 +7,7 @@ from . import Shader
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return bilinear(tex, uv[0], uv[1], True)
 
 

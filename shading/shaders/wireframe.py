@@ -10,7 +10,7 @@ PARAMS = {"line_colour": (1.0, 1.0, 1.0)}
 
 
 @njit(cache=True, inline="always")
-def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube):
+def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return (kd[0] * prm[LINE], kd[1] * prm[LINE + 1], kd[2] * prm[LINE + 2])
 
 

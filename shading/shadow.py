@@ -1,0 +1,250 @@
+"""Shadows from the point light: a shadow map drawn by this project's own rasteriser from
+the light, looked up per sample with percentage-closer soft shadows (PCSS, Fernando 2005).
+
+The map: one perspective view from the light fitted to the bounding sphere of the shadow
+casters (every mesh but the planes, which receive shadows and cast none), or, when the
+light is inside that sphere, a cube of six 90-degree views. Each texel keeps the linear
+depth (distance along the view axis) of the nearest caster; texels no caster covers are
+infinitely far. Points outside every view are lit: no caster lies between them and the
+light.
+
+The lookup, per covered sample whose two-sided normal faces the light (a surface turned
+away from the light is unlit, visibility 0):
+- Depth bias: the receiver is the plane of its own triangle (the facet normal, not the
+  smooth one), moved towards the light by OFFSET_TEXELS texel widths at its depth; each
+  tap compares the caster's depth with that plane's depth along the tap's own ray. A flat
+  lit surface therefore never shadows itself whatever its slope (no acne), and a fold's
+  shadow starts within OFFSET_TEXELS texels of the fold (no gap).
+- Soft shadows from a spherical light of radius a: a blocker search over the region of
+  the map the light's disc covers as seen from the receiver (4 x 4 taps), the mean depth
+  d_b of the blockers found, the penumbra's full width at the receiver
+  w = 2 a (d_r - d_b) / d_b, and a box filter of that width (up to 8 x 8 taps): the
+  visibility ramps linearly across w, in world units, whatever the map's resolution.
+  With a = 0 (or a penumbra under a texel) the four nearest texels are blended
+  bilinearly: a hard shadow with a smooth edge.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from clothjit import STAGE, njit
+
+from .lighting import cross, dot, normalize, sub, two_sided
+from .visibility import VisibilityBuffer
+
+DEFAULT_RADIUS = 0.02  # metres, the light's default radius (render params "light_radius")
+MAP_SIZE = 1024  # texels per side of each view of the map (params "shadow_map_size")
+OFFSET_TEXELS = 1.5  # depth bias: receiver plane moved this many texel widths to the light
+SEARCH_TAPS = 4  # blocker search: SEARCH_TAPS x SEARCH_TAPS taps
+MAX_FILTER_TAPS = 8  # penumbra filter: at most MAX_FILTER_TAPS x MAX_FILTER_TAPS taps
+# cube faces: the view axis (the direction a face looks along) and an up vector
+_CUBE = (((1, 0, 0), (0, -1, 0)), ((-1, 0, 0), (0, -1, 0)), ((0, 1, 0), (0, 0, 1)),
+         ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0)))
+
+
+def _look(eye, axis, up):
+    """A 3x4 look-at view matrix (OpenGL: the view looks down -z) from eye along axis."""
+    f = np.asarray(axis, float) / np.linalg.norm(axis)
+    s = np.cross(f, up)
+    if np.linalg.norm(s) < 1e-6:  # axis along up: any other up will do
+        s = np.cross(f, (1.0, 0.0, 0.0) if abs(f[0]) < 0.9 else (0.0, 0.0, 1.0))
+    s /= np.linalg.norm(s)
+    u = np.cross(s, f)
+    m = np.empty((3, 4))
+    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
+    m[:, 3] = -m[:, :3] @ np.asarray(eye, float)
+    return m
+
+
+def _projection(tanh, near, far):
+    """gluPerspective of a square view with tan(fov / 2) = tanh, as a 4x4 matrix."""
+    m = np.zeros((4, 4))
+    m[0, 0] = m[1, 1] = 1.0 / tanh
+    m[2, 2] = (far + near) / (near - far)
+    m[2, 3] = 2.0 * far * near / (near - far)
+    m[3, 2] = -1.0
+    return m
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _linear_depth(depth, near, far, out):
+    """Window z of the rasteriser's depth test -> distance along the view axis (float32:
+    half the memory the look-ups read); returns the least."""
+    a = far + near
+    b = far - near
+    c = 2.0 * far * near
+    least = np.inf
+    for i in range(depth.shape[0]):
+        z = depth[i]
+        if z == np.inf:
+            out[i] = np.inf
+        else:
+            d = c / (a - (2.0 * z - 1.0) * b)
+            out[i] = d
+            least = min(least, d)
+    return least
+
+
+class ShadowMap:
+    """The shadow map of one frame (rebuilt by `build`), `size` texels per side."""
+
+    def __init__(self, size: int = MAP_SIZE):
+        self.size = int(size)
+        self.buffers: list[VisibilityBuffer] = []
+        self.lin = np.empty((0, self.size, self.size), np.float32)
+        self.views = np.empty((0, 3, 4))
+        self.tanh = np.empty(0)
+        self.near = np.empty(0)
+
+    def build(self, va, nv, verts, caster_vertices, light, groups):
+        """Draw the casters (triangles verts, vertex ids into va[:nv]; caster_vertices the
+        positions they use) from the light at `light` (3 numbers)."""
+        L = np.asarray(light, float)
+        if caster_vertices.shape[0] == 0 or verts.shape[0] == 0:
+            self._views([], [], [], [])
+            return
+        lo, hi = caster_vertices.min(axis=0), caster_vertices.max(axis=0)
+        c = 0.5 * (lo + hi)
+        r = float(np.sqrt(((caster_vertices - c) ** 2).sum(axis=1).max()))
+        dist = np.sqrt(((caster_vertices - L) ** 2).sum(axis=1))
+        # a triangle can come nearer the light than its vertices: half the nearest vertex
+        near = max(0.5 * float(dist.min()), 1e-4)
+        far = float(dist.max()) * 1.01 + 1e-4
+        d = float(np.linalg.norm(c - L))
+        if d > 1.02 * r:  # one view fitted to the casters' bounding sphere
+            tanh = math.tan(math.asin(r / d)) * 1.02
+            views = [_look(L, c - L, (0.0, 1.0, 0.0))]
+            tans = [tanh]
+        else:  # the light among the casters: a cube of six views
+            views = [_look(L, a, u) for a, u in _CUBE]
+            tans = [1.0] * 6
+        self._views(views, tans, [near] * len(views), [far] * len(views))
+        n = self.size
+        for k, view in enumerate(views):
+            vp = _projection(tans[k], near, far) @ np.vstack([view, (0.0, 0.0, 0.0, 1.0)])
+            buf = self.buffers[k]
+            buf.draw(va, nv, verts, verts.shape[0], vp, groups)
+            # the blocker search reaches no nearer the light than the nearest caster
+            self.near[k] = _linear_depth(buf.depth, near, far, self.lin[k].reshape(n * n))
+
+    def _views(self, views, tans, nears, fars):
+        k = len(views)
+        while len(self.buffers) < k:
+            self.buffers.append(VisibilityBuffer(self.size, self.size))
+        if self.lin.shape[0] != k:
+            self.lin = np.empty((k, self.size, self.size), np.float32)
+        self.views = np.array(views, float).reshape(k, 3, 4)
+        self.tanh = np.array(tans, float)
+        self.near = np.array(nears, float)
+
+
+
+@njit(cache=True, inline="always")
+def _xform(v, p, w):
+    """Rows of the 3x4 matrix v applied to p (w = 1: a point, w = 0: a direction)."""
+    return (v[0, 0] * p[0] + v[0, 1] * p[1] + v[0, 2] * p[2] + w * v[0, 3],
+            v[1, 0] * p[0] + v[1, 1] * p[1] + v[1, 2] * p[2] + w * v[1, 3],
+            v[2, 0] * p[0] + v[2, 1] * p[1] + v[2, 2] * p[2] + w * v[2, 3])
+
+
+@njit(cache=True, inline="always")
+def _tap(lin, k, i, j, n, tanh, nv, c, d):
+    """Depth of the caster at texel (i, j) of view k, and whether it is nearer the light
+    than the receiver plane (nv . x = c, in view space) along that texel's ray."""
+    if i < 0 or j < 0 or i >= n or j >= n:
+        return np.inf, False
+    z = np.float64(lin[k, j, i])
+    if z == np.inf:
+        return z, False
+    a = ((i + 0.5) * 2.0 / n - 1.0) * tanh
+    b = (1.0 - (j + 0.5) * 2.0 / n) * tanh
+    den = nv[0] * a + nv[1] * b - nv[2]
+    if den < -1e-9:  # z < c / den, the receiver plane's depth on this ray (den < 0)
+        return z, z * den > c
+    return z, z < d
+
+
+@njit(cache=True, inline="always")
+def _bilinear(lin, k, x, y, n, tanh, nv, c, d):
+    """Visibility from the four texels around (x, y), weighted bilinearly."""
+    i0 = int(math.floor(x))
+    j0 = int(math.floor(y))
+    fx = x - i0
+    fy = y - j0
+    vis = 0.0
+    for q in range(4):
+        i = i0 + (q & 1)
+        j = j0 + (q >> 1)
+        if not _tap(lin, k, i, j, n, tanh, nv, c, d)[1]:
+            vis += (fx if q & 1 else 1.0 - fx) * (fy if q >> 1 else 1.0 - fy)
+    return vis
+
+
+@njit(**STAGE, inline="always")
+def light_visibility(lin, views, tanh, near, radius, va, tri, lp, p, n0, v):
+    """The light's visibility (0..1) at point p of triangle tri (3 vertex ids into va;
+    interpolated normal n0, unit vector v to the eye) from the shadow map (lin, views,
+    tanh, near: ShadowMap's arrays) of the light at lp of radius `radius`."""
+    to_light = sub(lp, p)
+    if dot(two_sided(n0, v), to_light) <= 0.0:
+        return 0.0  # the light is behind the surface
+    n = lin.shape[1]
+    for k in range(views.shape[0]):
+        pv = _xform(views[k], p, 1.0)
+        d = -pv[2]
+        th = tanh[k]
+        if d <= 0.0 or abs(pv[0]) > d * th or abs(pv[1]) > d * th:
+            continue  # outside this view (and so lit by it: no caster there)
+        u = pv[0] / (d * th)
+        w = pv[1] / (d * th)
+        i0, i1, i2 = tri
+        ng = cross((va[i1, 0] - va[i0, 0], va[i1, 1] - va[i0, 1], va[i1, 2] - va[i0, 2]),
+                   (va[i2, 0] - va[i0, 0], va[i2, 1] - va[i0, 1], va[i2, 2] - va[i0, 2]))
+        ng = normalize(ng if dot(ng, to_light) >= 0.0 else (-ng[0], -ng[1], -ng[2]))
+        x = (u + 1.0) * 0.5 * n - 0.5
+        y = (1.0 - w) * 0.5 * n - 0.5
+        nv = _xform(views[k], ng, 0.0)
+        tw = 2.0 * d * th / n  # a texel's width at the receiver
+        c = dot(nv, pv) + OFFSET_TEXELS * tw
+        return _pcss(lin, k, x, y, n, th, nv, c, d, near[k], radius, tw)
+    return 1.0
+
+
+@njit(cache=True, inline="always")
+def _pcss(lin, k, x, y, n, th, nv, c, d, near, radius, tw):
+    """Percentage-closer soft shadows at texel position (x, y) of view k."""
+    # the light's disc seen from the receiver covers, at the nearest caster depth, this
+    # many texels of the map (radius of the region)
+    rs = radius * (d - near) / (d * near) / (2.0 * th / n)
+    if rs < 1.0:
+        return _bilinear(lin, k, x, y, n, th, nv, c, d)
+    rs = min(rs, n / 8.0)
+    found = 0
+    zsum = 0.0
+    for q in range(SEARCH_TAPS * SEARCH_TAPS):
+        ox = (2.0 * (q % SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
+        oy = (2.0 * (q // SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
+        z, hit = _tap(lin, k, int(math.floor(x + ox + 0.5)), int(math.floor(y + oy + 0.5)),
+                      n, th, nv, c, d)
+        if hit:
+            found += 1
+            zsum += z
+    if found == 0:
+        return 1.0
+    if found == SEARCH_TAPS * SEARCH_TAPS:
+        return 0.0  # blockers all over the light's disc: the umbra
+    zb = zsum / found
+    rf = radius * (d - zb) / zb / tw  # the penumbra's half width, in texels
+    if rf < 1.0:
+        return _bilinear(lin, k, x, y, n, th, nv, c, d)
+    # taps at the centres of taps x taps equal cells of the filter's square
+    taps = min(MAX_FILTER_TAPS, int(rf) + 2)
+    lit = 0
+    for q in range(taps * taps):
+        ox = ((2.0 * (q % taps) + 1.0) / taps - 1.0) * rf
+        oy = ((2.0 * (q // taps) + 1.0) / taps - 1.0) * rf
+        if not _tap(lin, k, int(math.floor(x + ox + 0.5)), int(math.floor(y + oy + 0.5)),
+                    n, th, nv, c, d)[1]:
+            lit += 1
+    return lit / (taps * taps)

@@ -1,0 +1,134 @@
+"""A visibility buffer for one grid of samples: the rasteriser's buffers and its pipeline
+(project, set up, bin, raster) seen through one view-projection. The renderer owns one
+for the camera's image and, with shadows on, one for the light's shadow map."""
+from __future__ import annotations
+
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+
+import numba
+import numpy as np
+
+from . import raster as R
+
+
+class VisibilityBuffer:
+    """Depth (window z), primitive id and barycentrics of every sample of a W x H grid,
+    and the per-primitive and per-vertex scratch the rasteriser needs (grown on demand,
+    never shrunk: drawing a frame allocates nothing large)."""
+
+    def __init__(self, width: int, height: int):
+        self.width, self.height = int(width), int(height)
+        ns = self.width * self.height
+        # rowlo/rowhi = the whole row: the first frame clears all
+        self.depth = np.full(ns, np.inf)
+        self.prim = np.full(ns, -1, np.int32)
+        self.bary = np.zeros((ns, 2), np.float32)
+        self.rowlo = np.zeros(self.height, np.int32)
+        self.rowhi = np.full(self.height, self.width - 1, np.int32)
+        self.count = np.zeros(1, np.int32)  # replaced by a per-sample buffer on demand
+        self.nb = (self.height + R.BAND - 1) // R.BAND
+        self.band_start = np.zeros(self.nb + 1, np.int64)
+        self.items = np.empty(1024, np.int64)
+        self._prims(1024)
+        self.clip = self.vcode = self.vx = None
+        self.n_prims = 0
+
+    def _prims(self, cap):
+        self.pv = np.empty((cap, 3), np.int32)
+        self.pflag = np.empty(cap, np.int8)
+        self.psrc = np.empty(cap, np.int32)
+        self.pbox = np.empty((cap, 4), np.int64)
+
+    def _vertices(self, cap):
+        """Window-space vertex slots: the mesh vertices, then the ones made by clipping."""
+        self.vx = np.empty(cap, np.int64)
+        self.vy = np.empty(cap, np.int64)
+        self.vz = np.empty(cap)
+        self.viw = np.empty(cap)
+        self.wb = np.empty((cap, 3))  # row e: source weights of slot nv + e (<= cap)
+
+    def draw(self, va, nv, verts, npr, vp, groups, *, lines_aa=0, count_coverage=False,
+             timings=None):
+        """Rasterise primitives verts[:npr] (vertex ids into va[:nv], whose columns 0:3 are
+        world positions) through the 4x4 view-projection vp: triangles, or lines drawn
+        lines_aa samples thick when lines_aa > 0. timings: receives "geometry" (projection,
+        setup, binning) and "raster" seconds."""
+        W, H = self.width, self.height
+        if self.clip is None or self.clip.shape[0] < nv:
+            self.clip = np.empty((va.shape[0], 4))
+            self.vcode = np.empty(va.shape[0], np.int32)
+        if self.vx is None or self.vx.shape[0] < nv + 64:
+            self._vertices(nv + max(1024, nv // 4))
+        setup = R.setup_lines if lines_aa else R.setup_triangles
+        extra = (lines_aa,) if lines_aa else ()
+        clock = time.perf_counter if timings is not None else None
+        if clock:
+            t0 = clock()
+        projected = None
+        while True:
+            if projected is not self.vx:  # (again if the vertex slots were reallocated)
+                R.project(va[:nv], vp, W, H, self.clip, self.vcode, self.vx, self.vy,
+                          self.vz, self.viw)
+                projected = self.vx
+            m, e = setup(verts[:npr], self.clip, self.vcode, nv, W, H, *extra, self.vx,
+                         self.vy, self.vz, self.viw, self.wb, self.pv, self.pflag, self.psrc,
+                         self.pbox, self.band_start)
+            if m <= self.pv.shape[0] and nv + e <= self.vx.shape[0]:
+                break
+            if m > self.pv.shape[0]:
+                self._prims(int(m * 1.25) + 16)
+            if nv + e > self.vx.shape[0]:
+                self._vertices(nv + int(e * 1.25) + 16)
+        self.n_prims = m
+        while True:
+            total = R.bin_prims(self.pbox, m, self.nb, self.band_start, self.items)
+            if total <= self.items.shape[0]:
+                break
+            self.items = np.empty(int(total * 1.25) + 16, np.int64)
+        if count_coverage and self.count.shape[0] != self.depth.shape[0]:
+            self.count = np.zeros(self.depth.shape[0], np.int32)
+        if clock:
+            t1 = clock()
+        common = (self.nb, W, H, nv, self.band_start, self.items, self.pv, self.pflag,
+                  self.psrc, self.pbox, self.vx, self.vy, self.vz, self.viw, self.wb,
+                  self.depth, self.prim, self.bary, self.rowlo, self.rowhi, self.count,
+                  bool(count_coverage))
+        if lines_aa:
+            run_groups(R.raster_lines, groups, (lines_aa,) + common)
+        else:
+            run_groups(R.raster_triangles, groups, common)
+        if clock:
+            timings.update(geometry=t1 - t0, raster=clock() - t1)
+
+
+_pool = None
+_pool_lock = threading.Lock()
+
+
+def thread_groups(threads: int | None) -> int:
+    """The number of row groups (threads) to run: `threads`, or NUMBA_NUM_THREADS."""
+    return threads or numba.get_num_threads()
+
+
+def run_groups(kernel, groups, args, first=False):
+    """kernel(g, groups, *args) for g in range(groups) (with first=True:
+    kernel(args[0], g, *args[1:]), the fragment-stage signature); group 0 on this thread,
+    the others on a thread pool (the kernels release the GIL; the pool's idle threads
+    sleep, they do not spin). Every row belongs to exactly one group."""
+    global _pool
+    if first:
+        call = lambda g: kernel(args[0], g, *args[1:])  # noqa: E731
+    else:
+        call = lambda g: kernel(g, groups, *args)  # noqa: E731
+    if groups == 1:
+        call(0)
+        return
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < groups - 1:
+            _pool = ThreadPoolExecutor(max_workers=groups - 1, thread_name_prefix="render")
+    futs = [_pool.submit(call, g) for g in range(1, groups)]
+    call(0)
+    for fu in futs:
+        fu.result()
