@@ -1,7 +1,7 @@
 """Render benchmark: frames per second per shader, per-stage times, start-up.
 
     python benchmarks/render.py [--quick] [--shaders phong,normal] [--stages] [--startup]
-                                [--cold] [--scaling]
+                                [--cold] [--scaling] [--looks]
 
 Scenes: the sphere scene (50x50 cloth + sphere, frame 0 positions) and a 200x200 waved
 cloth, at 800x800 and 1920x1080. Compile time (first call) is reported apart; warm
@@ -17,6 +17,9 @@ what a loaded machine gives: the load average is printed).
             first rendered frame (256x256 sphere scene); --cold also compiles from
             scratch (into a temporary NUMBA_CACHE_DIR, the real cache is not touched).
 --scaling   time ratio for 4x the pixels (800x800 -> 1600x1600) per scene.
+--looks     per scene (with a floor plane under it to receive shadows) and size: the
+            shader plain, with shadows, with ambient occlusion and with both, measured
+            in alternating rounds; the best time of each and its ratio to plain.
 Threads: NUMBA_NUM_THREADS (default: all cores); compare NUMBA_NUM_THREADS=1 and 2.
 """
 from __future__ import annotations
@@ -58,15 +61,15 @@ def scenes():
     yield "cloth 200x200", pos2, 200, 200, []
 
 
-def bench(shader, pos, nw, nh, extra, w, h, reps):
+def bench(shader, pos, nw, nh, extra, w, h, reps, params=None):
     """(first call s, best s, median s, best render-only s, best per stage s)."""
     cam = shading.Camera.default_for_cloth(pos, 1.0, 1.0, width=w, height=h)
     r = shading.Renderer(w, h)
     t0 = time.perf_counter()
-    r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader)
+    r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader, params)
     first = time.perf_counter() - t0
     for _ in range(3):
-        r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader)
+        r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader, params)
     times, rtimes = [], []
     stages = dict.fromkeys(STAGES, float("inf"))
     st = {}
@@ -74,7 +77,7 @@ def bench(shader, pos, nw, nh, extra, w, h, reps):
         t0 = time.perf_counter()
         meshes = [shading.cloth_mesh(pos, nw, nh)] + extra
         t1 = time.perf_counter()
-        r.render(meshes, cam, None, shader, timings=st)
+        r.render(meshes, cam, None, shader, params, timings=st)
         t2 = time.perf_counter()
         times.append(t2 - t0)
         rtimes.append(t2 - t1)
@@ -82,6 +85,31 @@ def bench(shader, pos, nw, nh, extra, w, h, reps):
         for k in STAGES:
             stages[k] = min(stages[k], st[k])
     return first, min(times), statistics.median(times), min(rtimes), stages
+
+
+LOOKS = (("plain", {}), ("shadows", {"shadows": True}),
+         ("occlusion", {"ambient_occlusion": True}),
+         ("both", {"shadows": True, "ambient_occlusion": True}))
+
+
+def looks(shaders, sizes, reps, rounds=3):
+    """Each look's best frame time over alternating rounds, and its ratio to plain."""
+    floor = shading.plane_mesh((0.5, 0.0, 0.5), (0.0, 1.0, 0.0))
+    print(f"{'scene':<14} {'size':>9} {'shader':<9}"
+          + "".join(f" {name + ' ms':>13}" for name, _ in LOOKS)
+          + "".join(f" {name + ' x':>11}" for name, _ in LOOKS[1:]))
+    for name, pos, nw, nh, extra in scenes():
+        for w, h in sizes:
+            for sh in shaders:
+                best = {k: float("inf") for k, _ in LOOKS}
+                for _ in range(rounds):
+                    for k, prm in LOOKS:
+                        best[k] = min(best[k], bench(sh, pos, nw, nh, extra + [floor], w, h,
+                                                     reps, prm)[1])
+                print(f"{name:<14} {w}x{h:<5} {sh:<9}"
+                      + "".join(f" {best[k] * 1e3:13.2f}" for k, _ in LOOKS)
+                      + "".join(f" {best[k] / best['plain']:11.2f}" for k, _ in LOOKS[1:]),
+                      flush=True)
 
 
 def load():
@@ -145,6 +173,8 @@ def main(argv=None):
     ap.add_argument("--startup", action="store_true", help="new-process start-up per shader")
     ap.add_argument("--cold", action="store_true", help="with --startup: cold compile too")
     ap.add_argument("--scaling", action="store_true", help="4x pixels time ratio")
+    ap.add_argument("--looks", action="store_true",
+                    help="shadows and ambient occlusion against the plain shader")
     ap.add_argument("--sizes", default="800x800,1920x1080")
     a = ap.parse_args(argv)
     reps = 10 if a.quick else 40
@@ -153,6 +183,10 @@ def main(argv=None):
     header()
     if a.startup:
         startup(shaders, a.cold)
+        return
+    if a.looks:
+        looks(shaders, sizes, max(reps // 4, 3))
+        print(f"# {load()}")
         return
     if a.scaling:
         print(f"{'scene':<14} {'shader':<10} {'800x800 ms':>10} {'1600x1600 ms':>12} {'ratio':>6}")

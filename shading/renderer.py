@@ -8,7 +8,8 @@ image) for one image size, so rendering a frame allocates nothing large.
 k_n, ...; see each shader's PARAMS), "background" (rgb), "texture", "height_map" (image
 paths or (h,w,3) arrays), "cubemap" (folder with posx..negz.png or a (6,s,s,3) array),
 "light_position", "light_intensity", "light_radius" (override `light`), "shadows" (bool),
-"shadow_map_size" (texels, default 1024). Unknown keys are ignored.
+"shadow_map_size" (texels, default 1024), "ambient_occlusion" (bool), "ao_radius" (metres,
+default 0.1). Unknown keys are ignored.
 """
 from __future__ import annotations
 
@@ -21,6 +22,9 @@ from clothjit import njit
 
 from .camera import Camera
 from .shade import Frame, fetch, fragment_stage, uncached_fragment_stage
+from .occlusion import DEFAULT_RADIUS as AO_RADIUS
+from .occlusion import KERNEL as AO_KERNEL
+from .occlusion import blur_pass, occlusion_pass
 from .shaders import get_shader
 from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, light_visibility
 from .textures import resolve
@@ -126,6 +130,8 @@ class Renderer:
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.frame = None  # the last frame's shade.Frame
+        self.occ_raw = self.occlusion = _OFF  # per pixel, with ambient occlusion
+        self.occ_dist = np.empty(0)
         self.threads = None  # None: numba.get_num_threads() (NUMBA_NUM_THREADS)
 
     # the camera's visibility buffer, as the tests and debugging aids read it
@@ -170,7 +176,7 @@ class Renderer:
                 _pack_prims(verts, self.obj_of, p, _ro(m.triangles), v, i)
                 p += k
             kd[i] = m.colour
-            self.casts[i] = m.name != "plane"
+            self.casts[i] = not m.name.startswith("plane")  # "plane", "plane_0", ...
             v += n
         return nv, npr, kd
 
@@ -229,6 +235,8 @@ class Renderer:
                   camera.eye, lp, li, bg, self.image, _OFF, *_NO_SHADOW_MAP)
         if shadows:
             f = self._shadows(f, nv, npr, lp, radius, params, groups)
+        if params.get("ambient_occlusion", False) and not lines:
+            f = self._occlusion(f, camera, params, groups)
         self.frame = f
         if clock:
             t4 = clock()
@@ -251,10 +259,27 @@ class Renderer:
         if not casting.all():
             verts = verts[casting]
         used = np.unique(verts) if verts.shape[0] else np.empty(0, np.int64)
-        self.shadow_map.build(self.va, nv, verts, self.va[used, :3], lp, groups)
+        self.shadow_map.build(self.va, nv, verts, self.va[used, :3], lp, radius, groups)
         m = self.shadow_map
         return f._replace(smap=m.lin, sviews=m.views, stanh=m.tanh, snear=m.near,
                           sradius=radius)
+
+    def _occlusion(self, f, camera, params, groups):
+        """Frame f with its pixels' ambient occlusion factors (occlusion.py)."""
+        radius = float(params.get("ao_radius", AO_RADIUS))
+        if not (math.isfinite(radius) and radius > 0.0):
+            raise ValueError(f"ao_radius must be a number > 0, got {radius!r}")
+        n = self.width * self.height
+        if self.occ_raw.shape[0] != n:
+            self.occ_raw = np.empty(n, np.float32)
+            self.occ_dist = np.empty(n)
+            self.occlusion = np.empty(n, np.float32)
+        args = (camera.view_projection(), camera.near, camera.far, radius, AO_KERNEL,
+                self.view.depth, self.occ_raw, self.occ_dist)
+        run_groups(occlusion_pass, groups, (f,) + args, first=True)
+        run_groups(blur_pass, groups, (f, radius, self.occ_raw, self.occ_dist,
+                                       self.occlusion), first=True)
+        return f._replace(occ=self.occlusion)
 
     def light_visibility(self) -> np.ndarray:
         """Per sample (row-major, float32) the light's visibility the last render's shaders

@@ -59,7 +59,7 @@ Frame = namedtuple("Frame", [
     "kd",  # float64 (objects, 3)
     "eye", "lp", "li", "bg",  # 3-tuples of float
     "out",  # uint8 (height, width, 3)
-    "occ",  # float32 (S,): ambient occlusion factor per sample; (0,) when off
+    "occ",  # float32 (height * width,): ambient occlusion factor per pixel; (0,) when off
     "smap", "sviews", "stanh", "snear", "sradius",  # shadow.ShadowMap's; 0 views when off
 ])
 
@@ -167,7 +167,7 @@ def _typeof_shader_key(value, context):
 
 _FRAGMENTS: dict[int, object] = {}  # key -> fragment (an @njit colour function)
 _run_time_keys = itertools.count(-1, -1)
-_SOURCES = ("lighting.py", "textures.py")  # helpers a fragment inlines
+_SOURCES = ("lighting.py", "textures.py", "shadow.py")  # helpers the stage inlines
 
 
 def shader_key(name: str, fragment, registered: bool) -> ShaderKey:
@@ -221,7 +221,7 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                         vis = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
                                                f.va, (f.verts[m, 0], f.verts[m, 1],
                                                       f.verts[m, 2]), f.lp, p, n0, v)
-                    lit = (vis, np.float64(f.occ[s]) if f.occ.shape[0] else 1.0)
+                    lit = (vis, np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
                                        cube, lit))
             put(f, y, x, c)

@@ -16,10 +16,12 @@ away from the light is unlit, visibility 0):
   lit surface therefore never shadows itself whatever its slope (no acne), and a fold's
   shadow starts within OFFSET_TEXELS texels of the fold (no gap).
 - Soft shadows from a spherical light of radius a: a blocker search over the region of
-  the map the light's disc covers as seen from the receiver (4 x 4 taps), the mean depth
-  d_b of the blockers found, the penumbra's full width at the receiver
-  w = 2 a (d_r - d_b) / d_b, and a box filter of that width (up to 8 x 8 taps): the
-  visibility ramps linearly across w, in world units, whatever the map's resolution.
+  the map the light's disc covers as seen from the receiver (4 x 4 taps), the depth d_b
+  of the farthest blocker found (the edge that casts the penumbra: the silhouette of a
+  round blocker, not its nearer middle as PCSS's usual mean would take), the
+  penumbra's full width at the receiver
+  w = 2 a (d_r - d_b) / d_b, and a box filter of that width (up to 8 x 8 bilinear taps):
+  the visibility ramps linearly across w, in world units, whatever the map's resolution.
   With a = 0 (or a penumbra under a texel) the four nearest texels are blended
   bilinearly: a hard shadow with a smooth edge.
 """
@@ -97,9 +99,9 @@ class ShadowMap:
         self.tanh = np.empty(0)
         self.near = np.empty(0)
 
-    def build(self, va, nv, verts, caster_vertices, light, groups):
+    def build(self, va, nv, verts, caster_vertices, light, radius, groups):
         """Draw the casters (triangles verts, vertex ids into va[:nv]; caster_vertices the
-        positions they use) from the light at `light` (3 numbers)."""
+        positions they use) from the light at `light` (3 numbers) of radius `radius`."""
         L = np.asarray(light, float)
         if caster_vertices.shape[0] == 0 or verts.shape[0] == 0:
             self._views([], [], [], [])
@@ -113,7 +115,9 @@ class ShadowMap:
         far = float(dist.max()) * 1.01 + 1e-4
         d = float(np.linalg.norm(c - L))
         if d > 1.02 * r:  # one view fitted to the casters' bounding sphere
-            tanh = math.tan(math.asin(r / d)) * 1.02
+            # widened by the penumbra beyond the casters' outline: seen from the light, it
+            # reaches at most radius / (nearest caster distance) further (tan units)
+            tanh = (math.tan(math.asin(r / d)) + radius / max(d - r, near)) * 1.02
             views = [_look(L, c - L, (0.0, 1.0, 0.0))]
             tans = [tanh]
         else:  # the light among the casters: a cube of six views
@@ -221,7 +225,7 @@ def _pcss(lin, k, x, y, n, th, nv, c, d, near, radius, tw):
         return _bilinear(lin, k, x, y, n, th, nv, c, d)
     rs = min(rs, n / 8.0)
     found = 0
-    zsum = 0.0
+    zb = 0.0
     for q in range(SEARCH_TAPS * SEARCH_TAPS):
         ox = (2.0 * (q % SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
         oy = (2.0 * (q // SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
@@ -229,22 +233,20 @@ def _pcss(lin, k, x, y, n, th, nv, c, d, near, radius, tw):
                       n, th, nv, c, d)
         if hit:
             found += 1
-            zsum += z
+            zb = max(zb, z)
     if found == 0:
         return 1.0
     if found == SEARCH_TAPS * SEARCH_TAPS:
         return 0.0  # blockers all over the light's disc: the umbra
-    zb = zsum / found
     rf = radius * (d - zb) / zb / tw  # the penumbra's half width, in texels
     if rf < 1.0:
         return _bilinear(lin, k, x, y, n, th, nv, c, d)
-    # taps at the centres of taps x taps equal cells of the filter's square
-    taps = min(MAX_FILTER_TAPS, int(rf) + 2)
-    lit = 0
+    # bilinear taps at the centres of taps x taps equal cells of the filter's square: the
+    # box filter's linear ramp, not a staircase of taps x taps levels
+    taps = min(MAX_FILTER_TAPS, int(math.ceil(rf)) + 1)
+    lit = 0.0
     for q in range(taps * taps):
         ox = ((2.0 * (q % taps) + 1.0) / taps - 1.0) * rf
         oy = ((2.0 * (q // taps) + 1.0) / taps - 1.0) * rf
-        if not _tap(lin, k, int(math.floor(x + ox + 0.5)), int(math.floor(y + oy + 0.5)),
-                    n, th, nv, c, d)[1]:
-            lit += 1
+        lit += _bilinear(lin, k, x + ox, y + oy, n, th, nv, c, d)
     return lit / (taps * taps)
