@@ -7,7 +7,6 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 
-import numba
 import numpy as np
 
 from . import raster as R
@@ -105,11 +104,6 @@ class VisibilityBuffer:
 
 _pool = None
 _pool_lock = threading.Lock()
-
-
-def thread_groups(threads: int | None) -> int:
-    """The number of row groups (threads) to run: `threads`, or NUMBA_NUM_THREADS."""
-    return threads or numba.get_num_threads()
 
 
 def run_groups(kernel, groups, args, first=False):
