@@ -26,7 +26,7 @@ from .occlusion import DEFAULT_RADIUS as AO_RADIUS
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import blur_pass, occlusion_pass
 from .shaders import get_shader
-from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, light_visibility
+from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, light_visibility
 from .textures import resolve
 from .visibility import VisibilityBuffer, run_groups
 
@@ -39,7 +39,7 @@ _DUMMY_TEX.flags.writeable = False  # same numba type as loaded (read-only) text
 _DUMMY_CUBE.flags.writeable = False
 _OFF = np.ones(0, np.float32)  # Frame.occ without ambient occlusion
 _NO_SHADOW_MAP = (np.ones((0, 1, 1), np.float32), np.zeros((0, 3, 4)), np.zeros(0),
-                  np.zeros(0), 0.0)  # Frame's shadow-map fields without shadows
+                  np.zeros(0), 0.0, np.zeros((0, 3)))  # Frame's shadow fields without shadows
 VA_COLS = 12  # position 0:3, normal 3:6, uv 6:8, tangent 8:11 (shade.Frame.va)
 
 
@@ -99,9 +99,9 @@ def _sample_visibility(f, out):
         m = f.prim[s]
         if m >= 0:
             p, n0, v, _, _, _ = fetch(f, s)
-            out[s] = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius, f.va,
-                                      (f.verts[m, 0], f.verts[m, 1], f.verts[m, 2]), f.lp, p,
-                                      n0, v)
+            out[s] = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
+                                      (f.snormals[m, 0], f.snormals[m, 1], f.snormals[m, 2]),
+                                      f.lp, p, n0, v)
 
 
 def _grow(arr, n, shape_tail=(), dtype=None):
@@ -126,7 +126,7 @@ class Renderer:
         self.view = VisibilityBuffer(self.sw, self.sh)  # the camera's
         self.image = np.empty((self.height, self.width, 3), np.uint8)
         self.va = None
-        self.verts = self.obj_of = self.disp = None
+        self.verts = self.obj_of = self.disp = self.normals = None
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.frame = None  # the last frame's shade.Frame
@@ -260,9 +260,11 @@ class Renderer:
             verts = verts[casting]
         used = np.unique(verts) if verts.shape[0] else np.empty(0, np.int64)
         self.shadow_map.build(self.va, nv, verts, self.va[used, :3], lp, radius, groups)
+        self.normals = _grow(self.normals, max(npr, 1), (3,), np.float64)
+        facet_normals(self.va, self.verts[:npr], lp, self.normals)
         m = self.shadow_map
         return f._replace(smap=m.lin, sviews=m.views, stanh=m.tanh, snear=m.near,
-                          sradius=radius)
+                          sradius=radius, snormals=self.normals)
 
     def _occlusion(self, f, camera, params, groups):
         """Frame f with its pixels' ambient occlusion factors (occlusion.py)."""

@@ -61,6 +61,7 @@ Frame = namedtuple("Frame", [
     "out",  # uint8 (height, width, 3)
     "occ",  # float32 (height * width,): ambient occlusion factor per pixel; (0,) when off
     "smap", "sviews", "stanh", "snear", "sradius",  # shadow.ShadowMap's; 0 views when off
+    "snormals",  # float64 (prims, 3): shadow.facet_normals, with shadows
 ])
 
 ZERO = (0.0, 0.0, 0.0)
@@ -219,8 +220,8 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                     if f.sviews.shape[0]:
                         m = f.prim[s]
                         vis = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
-                                               f.va, (f.verts[m, 0], f.verts[m, 1],
-                                                      f.verts[m, 2]), f.lp, p, n0, v)
+                                               (f.snormals[m, 0], f.snormals[m, 1],
+                                                f.snormals[m, 2]), f.lp, p, n0, v)
                     lit = (vis, np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
                                        cube, lit))

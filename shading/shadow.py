@@ -144,6 +144,24 @@ class ShadowMap:
 
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def facet_normals(va, verts, lp, out):
+    """out[t] = the unit normal of triangle verts[t] (vertex ids into va) on the side of
+    the light at lp (a triangle's plane does not pass through the light's side)."""
+    for t in range(verts.shape[0]):
+        i0 = verts[t, 0]
+        i1 = verts[t, 1]
+        i2 = verts[t, 2]
+        ng = cross((va[i1, 0] - va[i0, 0], va[i1, 1] - va[i0, 1], va[i1, 2] - va[i0, 2]),
+                   (va[i2, 0] - va[i0, 0], va[i2, 1] - va[i0, 1], va[i2, 2] - va[i0, 2]))
+        if dot(ng, (lp[0] - va[i0, 0], lp[1] - va[i0, 1], lp[2] - va[i0, 2])) < 0.0:
+            ng = (-ng[0], -ng[1], -ng[2])
+        ng = normalize(ng)
+        out[t, 0] = ng[0]
+        out[t, 1] = ng[1]
+        out[t, 2] = ng[2]
+
+
 @njit(cache=True, inline="always")
 def _xform(v, p, w):
     """Rows of the 3x4 matrix v applied to p (w = 1: a point, w = 0: a direction)."""
@@ -186,12 +204,12 @@ def _bilinear(lin, k, x, y, n, tanh, nv, c, d):
 
 
 @njit(**STAGE, inline="always")
-def light_visibility(lin, views, tanh, near, radius, va, tri, lp, p, n0, v):
-    """The light's visibility (0..1) at point p of triangle tri (3 vertex ids into va;
-    interpolated normal n0, unit vector v to the eye) from the shadow map (lin, views,
-    tanh, near: ShadowMap's arrays) of the light at lp of radius `radius`."""
-    to_light = sub(lp, p)
-    if dot(two_sided(n0, v), to_light) <= 0.0:
+def light_visibility(lin, views, tanh, near, radius, ng, lp, p, n0, v):
+    """The light's visibility (0..1) at point p of a triangle whose unit normal facing the
+    light is ng (`facet_normals`; interpolated normal n0, unit vector v to the eye) from
+    the shadow map (lin, views, tanh, near: ShadowMap's arrays) of the light at lp of
+    radius `radius`."""
+    if dot(two_sided(n0, v), sub(lp, p)) <= 0.0:
         return 0.0  # the light is behind the surface
     n = lin.shape[1]
     for k in range(views.shape[0]):
@@ -202,10 +220,6 @@ def light_visibility(lin, views, tanh, near, radius, va, tri, lp, p, n0, v):
             continue  # outside this view (and so lit by it: no caster there)
         u = pv[0] / (d * th)
         w = pv[1] / (d * th)
-        i0, i1, i2 = tri
-        ng = cross((va[i1, 0] - va[i0, 0], va[i1, 1] - va[i0, 1], va[i1, 2] - va[i0, 2]),
-                   (va[i2, 0] - va[i0, 0], va[i2, 1] - va[i0, 1], va[i2, 2] - va[i0, 2]))
-        ng = normalize(ng if dot(ng, to_light) >= 0.0 else (-ng[0], -ng[1], -ng[2]))
         x = (u + 1.0) * 0.5 * n - 0.5
         y = (1.0 - w) * 0.5 * n - 0.5
         nv = _xform(views[k], ng, 0.0)
