@@ -2,16 +2,19 @@
 much of the sky above a surface point the surfaces the camera sees hide, from the
 visibility buffer the rasteriser already has.
 
-Per output pixel (its first covered sample): TAPS points in the hemisphere of radius
+On a grid of half the image's resolution (every other pixel, its first sample), per
+cell: TAPS points in the hemisphere of radius
 `radius` (metres) about the two-sided normal, at lengths spread from 0.1 to 1 radius, the
 pattern turned about the normal by one of 16 angles in a 4 x 4 tile of pixels. Each point
 is projected into the image; it is occluded when the surface drawn there is nearer the
 camera than the point, by up to `radius` (a surface much nearer is another object in front,
 not an occluder: its weight falls as radius / depth difference). The pixel's factor is 1
-minus the occluded fraction; a 4 x 4 box filter over pixels of similar depth then
+minus the occluded fraction; a 4 x 4 box filter over cells of similar depth then
 averages the 16 turns of the pattern, so the result has no noise and no per-frame
-flicker (the pattern is fixed: the same frame gives the same image). The factor scales
-only the ambient term (shaders/__init__.py: `lit`).
+flicker (the pattern is fixed: the same frame gives the same image); each output pixel
+takes the factor of the neighbouring cell nearest its depth (no halo at silhouettes).
+Occlusion is a low-frequency term: half the resolution costs a quarter and looks the same.
+The factor scales only the ambient term (shaders/__init__.py: `lit`).
 """
 from __future__ import annotations
 
@@ -40,6 +43,8 @@ def _kernel(taps: int) -> np.ndarray:
 
 
 KERNEL = _kernel(TAPS)
+TURNS = np.array([(math.cos(k * math.pi / 8.0), math.sin(k * math.pi / 8.0))
+                  for k in range(16)])  # the 16 turns of the pattern
 
 
 @njit(cache=True, inline="always")
@@ -49,28 +54,30 @@ def _linear(z, near, far):
 
 
 @njit(**STAGE)
-def occlusion_pass(f, g, vp, near, far, radius, kernel, depth, raw, dist):
-    """raw[y * width + x] = 1 - occluded fraction, dist = view depth (inf: background)."""
+def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist):
+    """On the half-resolution grid (cell (i, j) = output pixel (2i, 2j), its first sample):
+    raw = 1 - occluded fraction, dist = view depth (inf: background)."""
     sw = f.width * f.aa
     sh = f.height * f.aa
-    for y in range(g, f.height, f.groups):
-        for x in range(f.width):
-            i = y * f.width + x
-            s = (y * f.aa) * sw + x * f.aa
+    hw = (f.width + 1) // 2
+    for j in range(g, (f.height + 1) // 2, f.groups):
+        for i in range(hw):
+            c = j * hw + i
+            s = (2 * j * f.aa) * sw + 2 * i * f.aa
             if f.prim[s] < 0:
-                raw[i] = 1.0
-                dist[i] = np.inf
+                raw[c] = 1.0
+                dist[c] = np.inf
                 continue
             p, n0, v, _, _, _ = fetch(f, s)
             n = two_sided(n0, v)
             dc = _linear(depth[s], near, far)
-            dist[i] = dc
+            dist[c] = dc
             a = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
             t = normalize(cross(n, a))
             b = cross(n, t)
-            ang = (((x & 3) << 2) | (y & 3)) * (2.0 * math.pi / 16.0)
-            ca = math.cos(ang)
-            sa = math.sin(ang)
+            turn = ((i & 3) << 2) | (j & 3)
+            ca = turns[turn, 0]
+            sa = turns[turn, 1]
             t, b = ((ca * t[0] + sa * b[0], ca * t[1] + sa * b[1], ca * t[2] + sa * b[2]),
                     (ca * b[0] - sa * t[0], ca * b[1] - sa * t[1], ca * b[2] - sa * t[2]))
             occ = 0.0
@@ -82,39 +89,75 @@ def occlusion_pass(f, g, vp, near, far, radius, kernel, depth, raw, dist):
                 cw = vp[3, 0] * q[0] + vp[3, 1] * q[1] + vp[3, 2] * q[2] + vp[3, 3]
                 if cw <= near:
                     continue
-                qx = (vp[0, 0] * q[0] + vp[0, 1] * q[1] + vp[0, 2] * q[2] + vp[0, 3]) / cw
-                qy = (vp[1, 0] * q[0] + vp[1, 1] * q[1] + vp[1, 2] * q[2] + vp[1, 3]) / cw
+                iw = 1.0 / cw
+                qx = (vp[0, 0] * q[0] + vp[0, 1] * q[1] + vp[0, 2] * q[2] + vp[0, 3]) * iw
+                qy = (vp[1, 0] * q[0] + vp[1, 1] * q[1] + vp[1, 2] * q[2] + vp[1, 3]) * iw
                 px = int(math.floor((qx + 1.0) * 0.5 * sw))
                 py = int(math.floor((1.0 - qy) * 0.5 * sh))
                 if px < 0 or py < 0 or px >= sw or py >= sh:
                     continue
                 zb = depth[py * sw + px]
-                if zb == np.inf:
+                # window z grows with depth: a surface drawn behind the tap's point (or
+                # none) cannot hide it, and needs no conversion to a distance
+                qz = 0.5 * (vp[2, 0] * q[0] + vp[2, 1] * q[1] + vp[2, 2] * q[2] + vp[2, 3]) * iw
+                if zb >= qz + 0.5:
                     continue
                 db = _linear(zb, near, far)
                 if db < cw - 0.02 * radius:
                     gap = dc - db
                     occ += 1.0 if gap <= radius else radius / gap
-            raw[i] = 1.0 - occ / kernel.shape[0]
+            raw[c] = 1.0 - occ / kernel.shape[0]
 
 
 @njit(**STAGE)
 def blur_pass(f, g, radius, raw, dist, out):
-    """out = the 4 x 4 box average of raw over pixels whose depth is within radius of the
-    centre's (covered pixels only): the 16 turns of the tap pattern averaged."""
-    for y in range(g, f.height, f.groups):
-        for x in range(f.width):
-            i = y * f.width + x
-            dc = dist[i]
+    """out = the 4 x 4 box average of raw (half-resolution grid) over cells whose depth is
+    within radius of the centre's: the 16 turns of the tap pattern averaged."""
+    hw = (f.width + 1) // 2
+    hh = (f.height + 1) // 2
+    for j in range(g, hh, f.groups):
+        for i in range(hw):
+            c = j * hw + i
+            dc = dist[c]
             if dc == np.inf:
-                out[i] = 1.0
+                out[c] = 1.0
                 continue
             acc = 0.0
             cnt = 0
-            for yy in range(max(y - 2, 0), min(y + 2, f.height)):
-                for xx in range(max(x - 2, 0), min(x + 2, f.width)):
-                    j = yy * f.width + xx
-                    if abs(dist[j] - dc) <= radius:
-                        acc += raw[j]
+            for jj in range(max(j - 2, 0), min(j + 2, hh)):
+                for ii in range(max(i - 2, 0), min(i + 2, hw)):
+                    e = jj * hw + ii
+                    if abs(dist[e] - dc) <= radius:
+                        acc += raw[e]
                         cnt += 1
-            out[i] = acc / cnt
+            out[c] = acc / cnt
+
+
+@njit(**STAGE)
+def upsample_pass(f, g, near, far, depth, dist, half, out):
+    """out[y * width + x] = the half-resolution factor of the nearest of the 2 x 2 cells
+    around output pixel (x, y) whose depth is closest to the pixel's (so that a factor is
+    not carried across a silhouette)."""
+    sw = f.width * f.aa
+    hw = (f.width + 1) // 2
+    hh = (f.height + 1) // 2
+    for y in range(g, f.height, f.groups):
+        j0 = y // 2
+        j1 = min(j0 + (1 if y & 1 else -1), hh - 1) if y > 0 else 0
+        for x in range(f.width):
+            s = (y * f.aa) * sw + x * f.aa
+            if f.prim[s] < 0:
+                out[y * f.width + x] = 1.0
+                continue
+            d = _linear(depth[s], near, far)
+            i0 = x // 2
+            i1 = min(i0 + (1 if x & 1 else -1), hw - 1) if x > 0 else 0
+            best = np.inf
+            val = 1.0
+            for q in range(4):
+                c = (j1 if q >> 1 else j0) * hw + (i1 if q & 1 else i0)
+                e = abs(dist[c] - d)
+                if e < best:
+                    best = e
+                    val = half[c]
+            out[y * f.width + x] = val

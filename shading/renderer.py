@@ -24,7 +24,8 @@ from .camera import Camera
 from .shade import Frame, fetch, fragment_stage, uncached_fragment_stage
 from .occlusion import DEFAULT_RADIUS as AO_RADIUS
 from .occlusion import KERNEL as AO_KERNEL
-from .occlusion import blur_pass, occlusion_pass
+from .occlusion import TURNS as AO_TURNS
+from .occlusion import blur_pass, occlusion_pass, upsample_pass
 from .shaders import get_shader
 from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, light_visibility
 from .textures import resolve
@@ -130,7 +131,9 @@ class Renderer:
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.frame = None  # the last frame's shade.Frame
-        self.occ_raw = self.occlusion = _OFF  # per pixel, with ambient occlusion
+        # with ambient occlusion: half-resolution raw and filtered factors and depths, and
+        # the factor of every pixel
+        self.occ_raw = self.occ_half = self.occlusion = _OFF
         self.occ_dist = np.empty(0)
         self.threads = None  # None: numba.get_num_threads() (NUMBA_NUM_THREADS)
 
@@ -272,15 +275,20 @@ class Renderer:
         if not (math.isfinite(radius) and radius > 0.0):
             raise ValueError(f"ao_radius must be a number > 0, got {radius!r}")
         n = self.width * self.height
-        if self.occ_raw.shape[0] != n:
-            self.occ_raw = np.empty(n, np.float32)
-            self.occ_dist = np.empty(n)
+        nh = ((self.width + 1) // 2) * ((self.height + 1) // 2)
+        if self.occlusion.shape[0] != n:
+            self.occ_raw = np.empty(nh, np.float32)
+            self.occ_half = np.empty(nh, np.float32)
+            self.occ_dist = np.empty(nh)
             self.occlusion = np.empty(n, np.float32)
-        args = (camera.view_projection(), camera.near, camera.far, radius, AO_KERNEL,
-                self.view.depth, self.occ_raw, self.occ_dist)
-        run_groups(occlusion_pass, groups, (f,) + args, first=True)
+        depth = self.view.depth
+        run_groups(occlusion_pass, groups, (f, camera.view_projection(), camera.near,
+                                            camera.far, radius, AO_KERNEL, AO_TURNS, depth,
+                                            self.occ_raw, self.occ_dist), first=True)
         run_groups(blur_pass, groups, (f, radius, self.occ_raw, self.occ_dist,
-                                       self.occlusion), first=True)
+                                       self.occ_half), first=True)
+        run_groups(upsample_pass, groups, (f, camera.near, camera.far, depth, self.occ_dist,
+                                           self.occ_half, self.occlusion), first=True)
         return f._replace(occ=self.occlusion)
 
     def light_visibility(self) -> np.ndarray:
