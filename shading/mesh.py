@@ -29,7 +29,8 @@ class Mesh:
 
     positions (V,3) float64, normals (V,3) float64 unit, uvs (V,2) float64,
     tangents (V,3) float64 unit, triangles (T,3) int32, colour k_d (3,) float64,
-    edges (E,2) int32 or None: the lines the wireframe shader draws.
+    edges (E,2) int32 or None: the lines the wireframe shader draws, shader: the name of
+    a shader of its own (drawing triangles), None: the frame's.
     """
 
     positions: np.ndarray
@@ -40,6 +41,7 @@ class Mesh:
     colour: np.ndarray = field(default_factory=lambda: np.ones(3))
     edges: np.ndarray | None = None
     name: str = ""
+    shader: str | None = None
 
     def __post_init__(self):
         self.positions = np.ascontiguousarray(self.positions, dtype=np.float64)

@@ -39,6 +39,7 @@ _DUMMY_CUBE = np.zeros((6, 1, 1, 3))
 _DUMMY_TEX.flags.writeable = False  # same numba type as loaded (read-only) textures
 _DUMMY_CUBE.flags.writeable = False
 _OFF = np.ones(0, np.float32)  # Frame.occ without ambient occlusion
+_ONE_PASS = (np.zeros(0, np.int32), 0, 1, np.zeros((0, 3)))  # Frame's fields, one shader
 _NO_SHADOW_MAP = (np.ones((0, 1, 1), np.float32), np.zeros((0, 3, 4)), np.zeros(0),
                   np.zeros(0), 0.0, np.zeros((0, 3)))  # Frame's shadow fields without shadows
 VA_COLS = 12  # position 0:3, normal 3:6, uv 6:8, tangent 8:11 (shade.Frame.va)
@@ -105,6 +106,16 @@ def _sample_visibility(f, out):
                                       f.lp, p, n0, v)
 
 
+def _inputs(shader, params):
+    """(packed params, texture, height map, cube map, stage key) of `shader`."""
+    tex = resolve("texture", params.get("texture")) if "texture" in shader.textures else _DUMMY_TEX
+    hmap = (resolve("height_map", params.get("height_map"))
+            if "height_map" in shader.textures else _DUMMY_TEX)
+    cube = (resolve("cubemap", params.get("cubemap")) if "cubemap" in shader.textures
+            else _DUMMY_CUBE)
+    return shader.pack(params), tex, hmap, cube, shader.stage_key()
+
+
 def _grow(arr, n, shape_tail=(), dtype=None):
     if arr is not None and arr.shape[0] >= n:
         return arr
@@ -130,6 +141,7 @@ class Renderer:
         self.verts = self.obj_of = self.disp = self.normals = None
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
+        self.acc = np.empty((0, 3))  # per pixel, with meshes of several shaders
         self.frame = None  # the last frame's shade.Frame
         # with ambient occlusion: half-resolution raw and filtered factors and depths, and
         # the factor of every pixel
@@ -144,7 +156,9 @@ class Renderer:
     count = property(lambda self: self.view.count)
     n_prims = property(lambda self: self.view.n_prims)
 
-    def _gather(self, meshes, shader, prm, hmap):
+    def _gather(self, meshes, shader, looks):
+        """Pack every mesh's vertices and primitives; looks[i] = (shader, its _inputs) of
+        mesh i, whose vertex stage (if any) moves its vertices."""
         lines = shader.primitive == "lines"
         nv = npr = 0
         for m in meshes:
@@ -165,9 +179,10 @@ class Renderer:
         for i, m in enumerate(meshes):
             n = m.positions.shape[0]
             pos = m.positions
-            if shader.vertex is not None:
+            own, (prm, _, hmap, _, _) = looks[i]
+            if own.vertex is not None:
                 self.disp = _grow(self.disp, n, (3,), np.float64)
-                pos = shader.vertex(m.positions, m.normals, m.uvs, prm, hmap, out=self.disp[:n])
+                pos = own.vertex(m.positions, m.normals, m.uvs, prm, hmap, out=self.disp[:n])
             _pack_vertices(va, v, _ro(pos), _ro(m.normals), _ro(m.uvs), _ro(m.tangents))
             if lines:
                 if m.edges is not None:
@@ -202,11 +217,22 @@ class Renderer:
                              f"{self.width}x{self.height}")
         sh = get_shader(shader)
         params = {} if params is None else params
-        prm = sh.pack(params)
-        tex = resolve("texture", params.get("texture")) if "texture" in sh.textures else _DUMMY_TEX
-        hmap = (resolve("height_map", params.get("height_map"))
-                if "height_map" in sh.textures else _DUMMY_TEX)
-        cube = resolve("cubemap", params.get("cubemap")) if "cubemap" in sh.textures else _DUMMY_CUBE
+        lines = sh.primitive == "lines"
+        # the shaders of the passes: the frame's, then those meshes of their own ask for
+        # (a wireframe frame draws every mesh's lines)
+        passes = [sh]
+        mesh_pass = [0] * len(meshes)
+        if not lines:
+            for i, m in enumerate(meshes):
+                if m.shader is not None and m.shader != sh.name:
+                    own = get_shader(m.shader)
+                    if own.primitive == "lines":
+                        raise ValueError(f"mesh {m.name!r}: shader {m.shader!r} draws lines; "
+                                         "a mesh's own shader must draw triangles")
+                    if own not in passes:
+                        passes.append(own)
+                    mesh_pass[i] = passes.index(own)
+        inputs = [_inputs(s, params) for s in passes]
         lp = getattr(light, "position", DEFAULT_LIGHT_POSITION) if light is not None \
             else DEFAULT_LIGHT_POSITION
         li = getattr(light, "intensity", DEFAULT_LIGHT_INTENSITY) if light is not None \
@@ -218,13 +244,10 @@ class Renderer:
         if not (math.isfinite(radius) and radius >= 0.0):
             raise ValueError(f"light radius must be a number >= 0, got {radius!r}")
         bg = _vec3(params.get("background", DEFAULT_BACKGROUND), "background")
-        lines = sh.primitive == "lines"
         shadows = bool(params.get("shadows", False)) and not lines
-        key = sh.stage_key()
-        stage = fragment_stage if key >= 0 else uncached_fragment_stage
         if clock:
             t1 = clock()
-        nv, npr, kd = self._gather(meshes, sh, prm, hmap)
+        nv, npr, kd = self._gather(meshes, sh, [(passes[k], inputs[k]) for k in mesh_pass])
         if clock:
             t2 = clock()
         groups = self.threads or numba.get_num_threads()
@@ -235,7 +258,7 @@ class Renderer:
             t3 = clock()
         f = Frame(self.height, self.width, self.aa, groups, self.view.prim, self.view.bary,
                   self.view.rowlo, self.view.rowhi, self.verts, self.obj_of, self.va, kd,
-                  camera.eye, lp, li, bg, self.image, _OFF, *_NO_SHADOW_MAP)
+                  camera.eye, lp, li, bg, self.image, _OFF, *_NO_SHADOW_MAP, *_ONE_PASS)
         if shadows:
             f = self._shadows(f, nv, npr, lp, radius, params, groups)
         if params.get("ambient_occlusion", False) and not lines:
@@ -243,7 +266,16 @@ class Renderer:
         self.frame = f
         if clock:
             t4 = clock()
-        run_groups(stage, groups, (f, prm, tex, hmap, cube, key), first=True)
+        if len(passes) > 1:
+            n = self.width * self.height
+            if self.acc.shape[0] != n:
+                self.acc = np.empty((n, 3))
+            f = f._replace(obj_pass=np.array(mesh_pass, np.int32), passes=len(passes),
+                           acc=self.acc)
+        for k, (prm, tex, hmap, cube, key) in enumerate(inputs):
+            stage = fragment_stage if key >= 0 else uncached_fragment_stage
+            run_groups(stage, groups, (f._replace(pass_id=k), prm, tex, hmap, cube, key),
+                       first=True)
         if clock:
             t5 = clock()
             timings.update(prepare=t1 - t0, gather=t2 - t1, shadows=t4 - t3, shade=t5 - t4)

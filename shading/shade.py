@@ -62,6 +62,9 @@ Frame = namedtuple("Frame", [
     "occ",  # float32 (height * width,): ambient occlusion factor per pixel; (0,) when off
     "smap", "sviews", "stanh", "snear", "sradius",  # shadow.ShadowMap's; 0 views when off
     "snormals",  # float64 (prims, 3): shadow.facet_normals, with shadows
+    # objects of several shaders: per object its pass (int32; (0,): one shader), this
+    # pass and how many, each pixel's sum so far (float64 (height * width, 3))
+    "obj_pass", "pass_id", "passes", "acc",
 ])
 
 ZERO = (0.0, 0.0, 0.0)
@@ -205,7 +208,13 @@ def _colour_overload(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit
 
 
 def _fragment_stage(f, g, prm, tex, hmap, cube, key):
-    """The fragment stage of output rows g, g + f.groups, ... by the shader `key`."""
+    """The fragment stage of output rows g, g + f.groups, ... by the shader `key`.
+
+    With objects of several shaders (f.obj_pass not empty) the stage runs once per
+    shader, pass f.pass_id of f.passes, and shades only the samples of the objects of its
+    pass (and the background, in pass 0); each pixel's sum is kept in f.acc between passes
+    and written by the last."""
+    multi = f.obj_pass.shape[0] > 0
     for y in range(g, f.height, f.groups):
         x0, x1 = begin_row(f, y)
         for x in range(x0, x1):
@@ -213,7 +222,10 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
             for k in range(f.aa * f.aa):
                 s = sample(f, y, x, k)
                 if f.prim[s] < 0:
-                    c = add(c, f.bg)
+                    if not multi or f.pass_id == 0:
+                        c = add(c, f.bg)
+                elif multi and f.obj_pass[f.obj_of[f.prim[s]]] != f.pass_id:
+                    continue
                 else:
                     p, n0, v, uv, t, kd = fetch(f, s)
                     vis = 1.0
@@ -225,6 +237,15 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                     lit = (vis, np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
                                        cube, lit))
+            if multi:
+                i = y * f.width + x
+                if f.pass_id > 0:
+                    c = (c[0] + f.acc[i, 0], c[1] + f.acc[i, 1], c[2] + f.acc[i, 2])
+                if f.pass_id < f.passes - 1:
+                    f.acc[i, 0] = c[0]
+                    f.acc[i, 1] = c[1]
+                    f.acc[i, 2] = c[2]
+                    continue
             put(f, y, x, c)
 
 

@@ -600,3 +600,14 @@ def test_valid_random_scenes_load(d):
     assert s.simulation.iterations == d["simulation"].get("iterations", 10)
     assert s.render.shader == d["render"].get("shader", "phong")
     assert set(s.render.params) == set(d["render"]) & {"k_s", "k_h"}
+
+
+def test_a_collider_look_loads_and_a_line_shader_is_refused():
+    d = raw("sphere")
+    d["sphere"].update(color=[0.9, 0.3, 0.2], shader="toon")
+    s = load_scene(d)
+    assert (s.colliders[0].color, s.colliders[0].shader) == ((0.9, 0.3, 0.2), "toon")
+    assert load_scene(raw("sphere")).colliders[0].shader is None
+    d["sphere"]["shader"] = "wireframe"
+    msg = error_of(d)
+    assert "sphere" in msg and "shader" in msg and "wireframe" in msg, msg

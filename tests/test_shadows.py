@@ -350,3 +350,26 @@ def test_ambient_occlusion_darkens_contact_only_and_scales_the_ambient_term():
     (fx, fy), = cam.project([[0.45, 0.0, 0.5]])[:, :2].astype(int)
     assert occ[cy, cx] < 0.9, occ[cy, cx]
     assert occ[fy, fx] == 1.0
+
+
+def test_a_mesh_with_its_own_shader_is_drawn_by_it():
+    """Meshes of two shaders in one frame (aa = 1): every pixel of the cloth drawn with
+    its own shader (toon) is that of a toon frame, every other pixel that of a phong
+    frame; with shadows too (the cloth's shadow falls on the phong meshes)."""
+    meshes, cam, lp = random_scene(3)
+    for look in ({}, {"shadows": True}):
+        r = Renderer(cam.width, cam.height)
+        plain = [r.render(meshes, cam, light(lp), s, look).copy() for s in ("phong", "toon")]
+        own = meshes[-1]
+        mixed_meshes = meshes[:-1] + [shading.Mesh(own.positions, own.normals, own.uvs,
+                                                   own.tangents, own.triangles, own.colour,
+                                                   own.edges, own.name, shader="toon")]
+        mixed = r.render(mixed_meshes, cam, light(lp), "phong", look)
+        obj = np.full(cam.width * cam.height, -1)
+        hit = r.prim >= 0
+        first = sum(len(m.triangles) for m in meshes[:-1])
+        obj[hit] = np.where(r.prim[hit] >= first, 1, 0)
+        toon = (obj == 1).reshape(cam.height, cam.width)
+        assert toon.any() and (~toon).any()
+        np.testing.assert_array_equal(mixed[toon], plain[1][toon])
+        np.testing.assert_array_equal(mixed[~toon], plain[0][~toon])

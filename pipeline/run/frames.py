@@ -73,6 +73,9 @@ def _collider_mesh(collider, k: int):
     else:
         m = shading.triangle_mesh(*collider_mesh_arrays(c))
     m.name = f"{_KIND_NAMES[type(c)]}_{k}"
+    if c.color is not None:
+        m.colour = np.array(c.color, dtype=np.float64)
+    m.shader = c.shader
     for arr in (m.positions, m.normals, m.uvs, m.tangents, m.triangles, m.colour, m.edges):
         arr.flags.writeable = False
     return m
@@ -84,7 +87,7 @@ def _posed(mesh, collider, time: float):
     pivot = np.asarray(collider.pivot, dtype=np.float64)
     return shading.Mesh((mesh.positions - pivot) @ rot.T + pivot + shift, mesh.normals @ rot.T,
                         mesh.uvs, mesh.tangents @ rot.T, mesh.triangles, mesh.colour,
-                        mesh.edges, mesh.name)
+                        mesh.edges, mesh.name, mesh.shader)
 
 
 def scene_meshes(scene: Scene, positions, model, time: float = 0.0) -> list:

@@ -13,7 +13,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .types import COLLIDER_KEYS, INTEGRATORS, MODELS, SHADERS
+from .types import COLLIDER_KEYS, INTEGRATORS, LINE_SHADERS, MODELS, SHADERS
 
 PathItem = str | int
 
@@ -34,6 +34,9 @@ def _schema_and_validator(integrators: tuple[str, ...], shaders: tuple[str, ...]
     defs["simulation"]["properties"]["integrator"]["enum"] = list(integrators)
     defs["simulation"]["properties"]["model"]["enum"] = list(MODELS)
     defs["render"]["properties"]["shader"]["enum"] = list(shaders)
+    for kind in ("sphere", "plane", "box", "mesh"):  # a collider's own: triangles only
+        defs[kind]["properties"]["shader"]["enum"] = [s for s in shaders
+                                                      if s not in LINE_SHADERS]
     # the schema's own validity is a test (test_the_schema_is_a_valid_draft_2020_12_schema):
     # checking it here cost every run 0.13 s
     return schema, jsonschema.Draft202012Validator(schema)

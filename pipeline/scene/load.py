@@ -364,23 +364,26 @@ def _keyframes(obj: dict) -> tuple[Keyframe, ...]:
 
 def _collider(key: str, obj: dict, base_dir: Path) -> Collider:
     friction, keys = float(obj["friction"]), _keyframes(obj)
+    look = {"color": _vec3(obj["color"]) if "color" in obj else None,
+            "shader": str(obj["shader"]) if "shader" in obj else None}
     if key == "sphere":
         return Sphere(origin=_vec3(obj["origin"]), radius=float(obj["radius"]),
-                      friction=friction, keyframes=keys)
+                      friction=friction, keyframes=keys, **look)
     if key == "plane":
         return Plane(point=_vec3(obj["point"]), normal=_vec3(obj["normal"]), friction=friction,
-                     keyframes=keys)
+                     keyframes=keys, **look)
     zero = (0.0, 0.0, 0.0)
     if key == "box":
         return Box(center=_vec3(obj["center"]), half_extents=_vec3(obj["half_extents"]),
-                   friction=friction, rotation=_vec3(obj.get("rotation", zero)), keyframes=keys)
+                   friction=friction, rotation=_vec3(obj.get("rotation", zero)), keyframes=keys,
+                   **look)
     scale = obj.get("scale", 1.0)
     return MeshCollider(
         path=resolve_path(base_dir, obj["path"]), friction=friction,
         translation=_vec3(obj.get("translation", zero)), rotation=_vec3(obj.get("rotation", zero)),
         scale=_vec3(scale) if isinstance(scale, list) else (float(scale),) * 3,
         solid=bool(obj.get("solid", True)), thickness=float(obj.get("thickness", 0.005)),
-        keyframes=keys)
+        keyframes=keys, **look)
 
 
 def _vec3(v) -> Vec3:

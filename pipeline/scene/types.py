@@ -20,6 +20,8 @@ MODELS: tuple[str, ...] = ("classic", "fem")
 SHADERS: tuple[str, ...] = (
     "normal", "wireframe", "diffuse", "phong", "texture", "bump", "displacement", "mirror", "toon",
 )
+#: The shaders that draw a mesh's lines, not its triangles: not a collider's own shader.
+LINE_SHADERS: tuple[str, ...] = ("wireframe",)
 
 
 #: Shader constants that `render` may give; stored in `RenderSettings.params` when given.
@@ -118,6 +120,8 @@ class Sphere:
     radius: float
     friction: float
     keyframes: tuple[Keyframe, ...] = ()
+    color: Vec3 | None = None  # k_d; None: the renderer's default for the kind
+    shader: str | None = None  # its own shader; None: the frame's
 
     @property
     def pivot(self) -> Vec3:
@@ -133,6 +137,8 @@ class Plane:
     normal: Vec3  # as written in the scene (not normalised)
     friction: float
     keyframes: tuple[Keyframe, ...] = ()
+    color: Vec3 | None = None  # k_d; None: the renderer's default for the kind
+    shader: str | None = None  # its own shader; None: the frame's
 
     @property
     def pivot(self) -> Vec3:
@@ -148,6 +154,8 @@ class Box:
     friction: float
     rotation: Vec3 = (0.0, 0.0, 0.0)  # Euler angles in degrees, R = Rz Ry Rx
     keyframes: tuple[Keyframe, ...] = ()
+    color: Vec3 | None = None  # k_d; None: the renderer's default for the kind
+    shader: str | None = None  # its own shader; None: the frame's
 
     @property
     def pivot(self) -> Vec3:
@@ -166,6 +174,8 @@ class MeshCollider:
     solid: bool = True  # closed solid (watertight) or one-sided surface
     thickness: float = 0.005  # metres kept between points and the surface
     keyframes: tuple[Keyframe, ...] = ()
+    color: Vec3 | None = None  # k_d; None: the renderer's default for the kind
+    shader: str | None = None  # its own shader; None: the frame's
 
     @property
     def pivot(self) -> Vec3:
