@@ -174,6 +174,7 @@ class Renderer:
         self.obj_of = _grow(self.obj_of, max(npr, 1), (), np.int32)
         kd = np.empty((max(len(meshes), 1), 3))
         self.casts = np.empty(len(meshes), bool)
+        self.mesh_vertices = np.empty(len(meshes) + 1, np.int64)  # mesh i: [v_i, v_i+1)
         va, verts = self.va, self.verts
         v = p = 0
         for i, m in enumerate(meshes):
@@ -195,7 +196,9 @@ class Renderer:
                 p += k
             kd[i] = m.colour
             self.casts[i] = not m.name.startswith("plane")  # "plane", "plane_0", ...
+            self.mesh_vertices[i] = v
             v += n
+        self.mesh_vertices[len(meshes)] = v
         return nv, npr, kd
 
     def render(self, meshes, camera: Camera, light=None, shader="phong", params=None, *,
@@ -293,8 +296,11 @@ class Renderer:
         casting = self.casts[self.obj_of[:npr]]
         if not casting.all():
             verts = verts[casting]
-        used = np.unique(verts) if verts.shape[0] else np.empty(0, np.int64)
-        self.shadow_map.build(self.va, nv, verts, self.va[used, :3], lp, radius, groups)
+        mv = self.mesh_vertices
+        casters = (self.va[mv[0]:mv[-1], :3] if self.casts.all() else
+                   np.concatenate([self.va[mv[i]:mv[i + 1], :3] for i in
+                                   np.flatnonzero(self.casts)] or [np.empty((0, 3))]))
+        self.shadow_map.build(self.va, nv, verts, casters, lp, radius, groups)
         self.normals = _grow(self.normals, max(npr, 1), (3,), np.float64)
         facet_normals(self.va, self.verts[:npr], lp, self.normals)
         m = self.shadow_map

@@ -33,7 +33,7 @@ import numpy as np
 from clothjit import STAGE, njit
 
 from .lighting import cross, dot, normalize, sub, two_sided
-from .visibility import VisibilityBuffer
+from .visibility import VisibilityBuffer, run_groups
 
 DEFAULT_RADIUS = 0.02  # metres, the light's default radius (render params "light_radius")
 MAP_SIZE = 1024  # texels per side of each view of the map (params "shadow_map_size")
@@ -70,22 +70,25 @@ def _projection(tanh, near, far):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _linear_depth(depth, near, far, out):
-    """Window z of the rasteriser's depth test -> distance along the view axis (float32:
-    half the memory the look-ups read); returns the least."""
+def _linear_depth(g, groups, depth, near, far, out, least):
+    """Rows g, g + groups, ... of the map: window z of the rasteriser's depth test ->
+    distance along the view axis (float32: half the memory the look-ups read);
+    least[g] = the least."""
     a = far + near
     b = far - near
     c = 2.0 * far * near
-    least = np.inf
-    for i in range(depth.shape[0]):
-        z = depth[i]
-        if z == np.inf:
-            out[i] = np.inf
-        else:
-            d = c / (a - (2.0 * z - 1.0) * b)
-            out[i] = d
-            least = min(least, d)
-    return least
+    n = out.shape[1]
+    lo = np.inf
+    for j in range(g, n, groups):
+        for i in range(n):
+            z = depth[j * n + i]
+            if z == np.inf:
+                out[j, i] = np.inf
+            else:
+                d = c / (a - (2.0 * z - 1.0) * b)
+                out[j, i] = d
+                lo = min(lo, d)
+    least[g] = lo
 
 
 class ShadowMap:
@@ -124,13 +127,14 @@ class ShadowMap:
             views = [_look(L, a, u) for a, u in _CUBE]
             tans = [1.0] * 6
         self._views(views, tans, [near] * len(views), [far] * len(views))
-        n = self.size
         for k, view in enumerate(views):
             vp = _projection(tans[k], near, far) @ np.vstack([view, (0.0, 0.0, 0.0, 1.0)])
             buf = self.buffers[k]
             buf.draw(va, nv, verts, verts.shape[0], vp, groups)
+            least = np.empty(groups)
+            run_groups(_linear_depth, groups, (buf.depth, near, far, self.lin[k], least))
             # the blocker search reaches no nearer the light than the nearest caster
-            self.near[k] = _linear_depth(buf.depth, near, far, self.lin[k].reshape(n * n))
+            self.near[k] = least.min()
 
     def _views(self, views, tans, nears, fars):
         k = len(views)

@@ -170,12 +170,21 @@ def random_scene(seed: int) -> tuple[list, Camera, tuple]:
     return meshes, cam, lp
 
 
-def test_hard_shadows_agree_with_ray_casting():
+@pytest.mark.parametrize("among", [False, True])
+def test_hard_shadows_agree_with_ray_casting(among):
+    """The light above the scene (one view fitted to the casters) and among them, under the
+    hanging cloth (a cube of six views)."""
     meshes, cam, lp = random_scene(11)
+    if among:
+        lp = (0.0, 0.45, 0.0)
     assert sum(len(m.triangles) for m in meshes) <= 3000
     hits = ref.trace_camera(meshes, cam)
     cls = ref.shadow_classes(meshes, cam, lp, hits)
-    vis, prim = render_visibility(meshes, cam, light(lp, 0.0))
+    r = Renderer(cam.width, cam.height)
+    r.render(meshes, cam, light(lp, 0.0), "diffuse", {"shadows": True})
+    assert r.shadow_map.views.shape[0] == (6 if among else 1)
+    vis = r.light_visibility().reshape(cam.height, cam.width)
+    prim = r.prim.reshape(cam.height, cam.width)
     assert np.mean(prim.ravel() == hits.tri) > 0.999  # same pixels, same triangle ids
     # where the interpolated normal (as the shader turns it) faces away from the light,
     # the renderer's visibility is unspecified: a class of its own, so its border is
