@@ -72,6 +72,9 @@ def test_the_npz_records_its_scene(shot):
     assert data["scene_overrides"].tolist() == ["render.width=64", "render.height=64"]
     assert data["positions"].shape == (5, 64, 3)  # the older arrays as before
     assert data["sim_frames"].tolist() == [0, 4, 7, 11, 14]
+    # no camera: what framed the shot (here every frame it holds)
+    assert data["framing_frames"].tolist() == [0, 4, 7, 11, 14]
+    assert data["framing_points"].dtype == np.float64 and data["framing_points"].shape[1] == 3
     s = read_shot(npz)
     assert s.scene.name == str(scene) and s.scene.data == scene.read_bytes()
     assert s.fps == 25 and s.sim_fps == 90 and s.points == 64
@@ -162,6 +165,108 @@ def test_a_mesh_cloth_is_drawn_with_its_seams(tmp_path, capsys):
                     "--shader", "texture", "-q")
     assert code == 0, err
     assert pngs(tmp_path / "again") == pngs(tmp_path / "direct")
+
+
+AT = ["--size", "64x64", "--duration", "0.2", "--at", "0.08", "--quiet"]
+
+
+def test_one_frame_of_a_framed_shot_is_drawn_as_its_run_drew_it(tmp_path, capsys):
+    """--at draws one frame of a shot framed whole: the NPZ holds that frame and what
+    framed the shot, so --from draws the same bytes; at another size, what a run at that
+    size draws; a re-export keeps the record. Without it (an older NPZ) the one frame held
+    is framed alone: another camera."""
+    scene = write(tmp_path, "small.json", SMALL)
+    code, err = run(capsys, scene, "--out", tmp_path / "direct.png", "--export-npz",
+                    tmp_path / "at.npz", *AT)
+    assert code == 0, err
+    data = np.load(tmp_path / "at.npz")
+    assert data["sim_frames"].tolist() == [7]
+    assert data["framing_frames"].tolist() == [0, 4, 7, 11, 14]
+    direct = (tmp_path / "direct.png").read_bytes()
+    code, err = run(capsys, "--from", tmp_path / "at.npz", "--out", tmp_path / "again.png",
+                    "--export-npz", tmp_path / "copy.npz", "-q")
+    assert code == 0, err
+    assert (tmp_path / "again.png").read_bytes() == direct
+    copy = np.load(tmp_path / "copy.npz")
+    for key in ("framing_frames", "framing_points"):
+        assert np.array_equal(copy[key], data[key]), key
+    code, err = run(capsys, "--from", tmp_path / "copy.npz", "--out", tmp_path / "copy.png",
+                    "-q")
+    assert code == 0, err
+    assert (tmp_path / "copy.png").read_bytes() == direct
+    # another size (and aspect): the camera a run at that size frames the whole shot with
+    code, err = run(capsys, "--from", tmp_path / "at.npz", "--out", tmp_path / "wide.png",
+                    "--size", "48x32", "--aa", "2", "-q")
+    assert code == 0, err
+    code, err = run(capsys, scene, "--out", tmp_path / "wide_direct.png", *AT, "--size",
+                    "48x32", "--aa", "2")
+    assert code == 0, err
+    assert (tmp_path / "wide.png").read_bytes() == (tmp_path / "wide_direct.png").read_bytes()
+    # the same shot asked for by its flags uses the record; the NPZ cannot frame another
+    code, err = run(capsys, "--from", tmp_path / "at.npz", "--out", tmp_path / "flags.png",
+                    "--at", "0.08", "--duration", "0.2", "-q")
+    assert code == 0, err
+    assert (tmp_path / "flags.png").read_bytes() == direct
+    code, err = run(capsys, "--from", tmp_path / "at.npz", "--out", tmp_path / "x.png",
+                    "--at", "0.08", "--duration", "0.1")
+    assert code == 2 and "holds no frame at t = 0 s" in err, err
+    with np.load(tmp_path / "at.npz") as d:
+        older = {k: d[k] for k in d.files if not k.startswith("framing_")}
+    np.savez_compressed(tmp_path / "older.npz", **older)
+    code, err = run(capsys, "--from", tmp_path / "older.npz", "--out", tmp_path / "old.png",
+                    "-q")
+    assert code == 0, err
+    assert (tmp_path / "old.png").read_bytes() != direct
+
+
+def test_the_last_frame_of_a_shot_given_by_frames(tmp_path, capsys):
+    """A .png of --frames 12 draws the last of the twelve, framed over all twelve (the
+    cloth is lower in it than before, and bounces up: framed alone, another camera)."""
+    scene = write(tmp_path, "small.json", SMALL)
+    code, err = run(capsys, scene, "--out", tmp_path / "direct.png", "--export-npz",
+                    tmp_path / "last.npz", "--frames", "12", "--size", "64x64", "-q")
+    assert code == 0, err
+    assert np.load(tmp_path / "last.npz")["sim_frames"].tolist() == [40]
+    code, err = run(capsys, "--from", tmp_path / "last.npz", "--out", tmp_path / "again.png",
+                    "-q")
+    assert code == 0, err
+    assert (tmp_path / "again.png").read_bytes() == (tmp_path / "direct.png").read_bytes()
+
+
+def test_the_recorded_points_frame_as_all_points_at_any_size():
+    """Framing.points: the camera of every point added, to the bit, at other sizes than
+    the recording's: points along a line of equal x + a_x z (rounding decides their
+    maximum), equal heights, repeated and rounded (tied) points."""
+    from pipeline.view.framing import Framing
+
+    rng = np.random.default_rng(7)
+    a = Framing(48, 32).a_x
+    z = np.linspace(-1.0, 1.0, 41)
+    line = np.stack([0.3 - a * z, rng.normal(size=41), z], axis=1)
+    grid = np.stack(np.meshgrid(np.linspace(-1, 1, 9), [0.5], np.linspace(-1, 1, 9)),
+                    axis=-1).reshape(-1, 3)
+    frames = [rng.normal(size=(200, 3)) for _ in range(4)]
+    frames += [line, grid, grid, np.round(rng.normal(size=(300, 3)), 1)]
+    recording = Framing(64, 64, record=True)
+    for p in frames:
+        recording.add(p)
+    assert len(recording.points()) < 150
+    for size in [(64, 64), (48, 32), (7, 500), (1920, 1080), (333, 217)]:
+        every, recorded = Framing(*size), Framing(*size)
+        for p in frames:
+            every.add(p)
+        recorded.add(recording.points())
+        assert recorded.camera() == every.camera(), size
+
+
+def test_a_malformed_framing_record_is_refused(shot, tmp_path, capsys):
+    _, npz, _ = shot
+    with np.load(npz) as d:
+        arrays = {k: d[k] for k in d.files}
+    np.savez(tmp_path / "bad.npz", **{**arrays, "framing_points": np.zeros((4, 2))})
+    code, err = run(capsys, "--from", tmp_path / "bad.npz", "--out", tmp_path / "x.gif")
+    assert code == 2 and "bad.npz: framing_frames, framing_points: expected" in err, err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "x.gif").exists()
 
 
 def test_an_older_npz_needs_its_scene_named(shot, tmp_path, capsys):

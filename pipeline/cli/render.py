@@ -276,8 +276,9 @@ def run(args, err: Errors, source=None) -> int:
                                        else SceneFile.read(source), overrides)
         from pipeline.view.framing import Framing
 
-        # a scene with no camera is framed over the whole shot: simulated ahead (_ahead)
-        framing = (Framing(plan.width, plan.height)
+        # a scene with no camera is framed over the whole shot: simulated ahead (_ahead);
+        # an NPZ export records what frames it, for render --from (any --size)
+        framing = (Framing(plan.width, plan.height, record=bool(args.export_npz))
                    if scene.camera is None and plan.kind is not None else None)
         writers = open_writers(plan, args)
         try:
@@ -374,7 +375,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
 
     t0 = time.perf_counter()
     if npz_w is not None:
-        npz_w.set_meta(**npz_meta(plan, scene, model, scene_meshes))
+        npz_w.set_meta(**npz_meta(plan, scene, model, scene_meshes,
+                                  None if framing is None else framing.points()))
     timers.encode += time.perf_counter() - t0
     notes = [sim.stepper.summary_text()] if sim.stepper is not None else []
     if sim.system.contact is not None:
@@ -384,9 +386,15 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
 
 
-def npz_meta(plan: Plan, scene, model, scene_meshes) -> dict:
-    """The --export-npz arrays besides the positions (pipeline.run.shotfile)."""
+def npz_meta(plan: Plan, scene, model, scene_meshes,
+             framing_points: np.ndarray | None = None) -> dict:
+    """The --export-npz arrays besides the positions (pipeline.run.shotfile); with
+    `framing_points` (pipeline.view.framing.Framing.points), the framing of plan's shot."""
+    from pipeline.run.shotfile import framing_record
+
     spf = scene.simulation.steps_per_frame
+    framing = ({} if framing_points is None
+               else framing_record(framing_points, plan.shot_frames))
     return {
         "times": np.array(plan.out_times, np.float64),
         "sim_frames": np.array(plan.sim_frames, np.int64),
@@ -394,7 +402,7 @@ def npz_meta(plan: Plan, scene, model, scene_meshes) -> dict:
         **cloth_faces(scene, model, scene_meshes),
         "grid": np.array([model.nh, model.nw], np.int64),
         "fps": np.float64(plan.fps), "sim_fps": np.float64(plan.sim_fps),
-        "steps_per_frame": np.int64(spf), **plan.record,
+        "steps_per_frame": np.int64(spf), **plan.record, **framing,
     }
 
 

@@ -10,7 +10,9 @@ cloth's positions are the NPZ's, frame by frame, at the NPZ's times (keyframed c
 posed at each frame's simulator time, as a simulating run draws them). By default the
 output frames are the NPZ's; --duration, --frames, --fps and --at choose others, each of
 which must be a frame the NPZ holds. The frames are the same bytes as those of the run that
-simulated the shot, given the same shader, size, aa and scene.
+simulated the shot, given the same shader, size, aa and scene. A scene with no camera is
+framed over the whole shot that run framed (recorded in the NPZ: framing_*), also when it
+drew only part of it (--at, --frames), at any --size; else over the frames the NPZ holds.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ import os
 import time
 import warnings
 from fractions import Fraction
+from typing import TYPE_CHECKING
 
 from pipeline.run import outputs
 from pipeline.run.errors import UsageError
@@ -26,6 +29,12 @@ from .messages import Errors, one_line
 from .render import (Plan, open_writers, read_golden, Timers, check_shader, cloth_faces,
                      finish, nearest_sim_frames, npz_meta, output_kind, output_times,
                      scene_overrides, write_frame)
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from pipeline.run.shotfile import Shot
+    from pipeline.view.framing import Framing
 
 
 class FromError(UsageError):
@@ -100,21 +109,38 @@ def run_from(args, err: Errors, t_wall: float) -> int:
         from pipeline.run.shotfile import scene_record
 
         plan.record = scene_record(source, overrides)
-    framing = None
-    if scene.camera is None and plan.kind is not None:  # framed over the shot, as it was
-        from pipeline.view.framing import Framing, framed_points
-
-        framing = Framing(plan.width, plan.height)
-        for j in plan.shot_frames:
-            framing.add(framed_points(scene, shot.positions[shot.frame_of(j)], j / plan.sim_fps))
+    framing, framing_points = framing_from(args, scene, shot, plan)
     writers = open_writers(plan, args)
     try:
-        return _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
-                     render_frame, scene_meshes)
+        return _draw(args, err, scene, plan, model, shot, writers, golden, framing,
+                     framing_points, t_wall, render_frame, scene_meshes)
     except BaseException:
         for writer in writers.values():
             writer.abort()
         raise
+
+
+def framing_from(args, scene, shot: Shot,
+                 plan: Plan) -> tuple[Framing | None, np.ndarray | None]:
+    """The Framing of a scene with no camera drawn to images (else None), and the points an
+    --export-npz records of it (else None): the NPZ's record when it framed this very shot
+    (its run framed all of it, the frames it did not keep too), else the NPZ's frames of
+    the shot (plan_from made sure it holds them)."""
+    if scene.camera is not None:
+        return None, None
+    recorded = shot.framing_of(plan.shot_frames)
+    if plan.kind is None:
+        return None, recorded  # nothing drawn: an export keeps the record
+    from pipeline.view.framing import Framing, framed_points
+
+    if recorded is not None:
+        framing = Framing(plan.width, plan.height)
+        framing.add(recorded)
+        return framing, recorded
+    framing = Framing(plan.width, plan.height, record=bool(args.export_npz))
+    for j in plan.shot_frames:
+        framing.add(framed_points(scene, shot.positions[shot.frame_of(j)], j / plan.sim_fps))
+    return framing, framing.points() if args.export_npz else None
 
 
 def _check_cloth(shot, scene, source, model, scene_meshes) -> None:
@@ -143,7 +169,9 @@ def plan_from(args, kind, out, scene, shot) -> Plan:
     if args.fps is None and args.duration is None and args.frames is None:
         times = [float(t) for t in shot.times]  # the NPZ's frames, at its times
         frames = [int(j) for j in shot.sim_frames]
-        animation = list(frames)
+        # of the shot that was framed, when recorded (a --at run drew one frame of it)
+        animation = (list(frames) if shot.framing_frames is None
+                     else [int(j) for j in shot.framing_frames])
         if kind == "png":
             if args.at is not None:
                 t = Fraction(args.at).limit_denominator(1000000)
@@ -160,8 +188,11 @@ def plan_from(args, kind, out, scene, shot) -> Plan:
             chosen = [Fraction(args.at).limit_denominator(1000000) if args.at is not None
                       else anim_times[-1]]
         times, frames = [float(t) for t in chosen], nearest_sim_frames(chosen, sim_fps)
-    framed = scene.camera is None and kind is not None
-    needed = sorted(set(animation) | set(frames)) if framed else sorted(set(frames))
+    shot_frames = sorted(set(animation) | set(frames))
+    # framed over the NPZ's frames unless it records the framing of this very shot
+    framed_here = (scene.camera is None and kind is not None
+                   and shot.framing_of(shot_frames) is None)
+    needed = shot_frames if framed_here else sorted(set(frames))
     for j in needed:
         if shot.frame_of(j) is None:
             t = j / sim_fps
@@ -174,13 +205,14 @@ def plan_from(args, kind, out, scene, shot) -> Plan:
                                                              scene.render.height)
     aa = args.aa if args.aa is not None else scene.render.aa
     return Plan(kind=kind, out=out, fps=fps, out_times=times, sim_frames=frames,
-                shot_frames=sorted(set(animation) | set(frames)), sim_fps=sim_fps,
-                shader=shader, width=int(width), height=int(height), aa=int(aa))
+                shot_frames=shot_frames, sim_fps=sim_fps, shader=shader, width=int(width),
+                height=int(height), aa=int(aa))
 
 
-def _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
-          render_frame, scene_meshes) -> int:
-    """Draw, export and encode every planned frame from the NPZ's positions."""
+def _draw(args, err, scene, plan, model, shot, writers, golden, framing, framing_points,
+          t_wall, render_frame, scene_meshes) -> int:
+    """Draw, export and encode every planned frame from the NPZ's positions (an export
+    records `framing_points`, when given)."""
     timers = Timers()
     out_w, obj_w, npz_w = (writers.get(key) for key in ("out", "obj", "npz"))
     names = None
@@ -203,6 +235,6 @@ def _draw(args, err, scene, plan, model, shot, writers, golden, framing, t_wall,
     finally:
         out_bar.close()
     if npz_w is not None:
-        npz_w.set_meta(**npz_meta(plan, scene, model, scene_meshes))
+        npz_w.set_meta(**npz_meta(plan, scene, model, scene_meshes, framing_points))
     return finish(args, err, plan, writers, golden, timers, t_wall,
                   [f"drawn from {shot.path}: {shot.describe()}; nothing simulated"])

@@ -1,8 +1,10 @@
 """A shot written by `render --export-npz`, read back by `render --from` (docs/cli.md).
 
     arrays = scene_record(SceneFile.read("scene.json"), overrides)  # added to the export
+    arrays |= framing_record(framing.points(), plan.shot_frames)     # a framed shot's camera
     shot = read_shot("shot.npz")   # UsageError naming the file and what it expected
     shot.positions[k], shot.times[k], shot.sim_frames[k], shot.scene, shot.overrides
+    shot.framing_of(shot_frames)   # the recorded framing of exactly that shot, or None
 
 The export's arrays (`pipeline.run.outputs.NpzWriter`): positions (F, N, 3) float64,
 times (F,) output times, sim_frames / sim_times (F,) the simulator frames shown, faces
@@ -10,8 +12,13 @@ times (F,) output times, sim_frames / sim_times (F,) the simulator frames shown,
 steps_per_frame; since npz_format 2 also the scene it came from: scene_name (the path as
 given), scene_folder (the absolute folder its relative file names are resolved against),
 scene_json (the file's bytes, uint8) and scene_overrides (the run's --set and the flags
-that became overrides, in order). Every array is plain numeric or unicode: np.load reads it
-without allow_pickle, and readers of the older keys are unaffected.
+that became overrides, in order); and when the scene has no camera and images were drawn,
+what framed them (pipeline.view.framing): framing_frames (S,) the simulator frames of the
+whole shot framed (more than those recorded when --at or a subset was drawn) and
+framing_points (K, 3) the framed points that hold its camera at any image size. Without
+them (an older file, or an export without images) --from frames the frames the file holds.
+Every array is plain numeric or unicode: np.load reads it without allow_pickle, and readers
+of the older keys are unaffected.
 """
 from __future__ import annotations
 
@@ -27,7 +34,8 @@ from pipeline.scene import SceneFile
 from .errors import UsageError
 
 #: 1: positions, times, sim_frames, sim_times, faces, uv, grid, fps, sim_fps,
-#: steps_per_frame (face_uv for a mesh cloth); 2: and the scene (scene_*), npz_format
+#: steps_per_frame (face_uv for a mesh cloth); 2: and the scene (scene_*), npz_format, and
+#: for a framed shot framing_* (optional: read when present)
 NPZ_FORMAT = 2
 
 #: what `render --from` needs of any export, old or new
@@ -53,6 +61,8 @@ class Shot:
     faces: np.ndarray | None  # (T, 3) the cloth's triangles, when recorded
     scene: SceneFile | None  # the scene it came from (npz_format >= 2), else None
     overrides: tuple[str, ...]  # the overrides that scene was loaded with
+    framing_frames: np.ndarray | None  # (S,) int64: the simulator frames of the shot framed
+    framing_points: np.ndarray | None  # (K, 3) float64: the points holding its camera
 
     @property
     def points(self) -> int:
@@ -62,6 +72,13 @@ class Shot:
         """The index of the first frame showing simulator frame `sim_frame`, or None."""
         hits = np.flatnonzero(self.sim_frames == sim_frame)
         return int(hits[0]) if len(hits) else None
+
+    def framing_of(self, shot_frames: Sequence[int]) -> np.ndarray | None:
+        """The recorded points (K, 3) framing a shot of exactly these simulator frames
+        (ascending), or None: none recorded, or recorded for another shot."""
+        if self.framing_frames is None or list(self.framing_frames) != list(shot_frames):
+            return None
+        return self.framing_points
 
     def describe(self) -> str:
         """'75 frames at 25 fps, t = 0 to 2.96 s, simulator frames 0 to 266 at 90 Hz'."""
@@ -80,6 +97,13 @@ def scene_record(scene: SceneFile, overrides: Sequence[str]) -> dict[str, np.nda
         "scene_json": np.frombuffer(bytes(scene.data), dtype=np.uint8).copy(),
         "scene_overrides": np.array(list(overrides), dtype=str).reshape(-1),
     }
+
+
+def framing_record(points: np.ndarray, shot_frames: Sequence[int]) -> dict[str, np.ndarray]:
+    """The arrays that record the framing of a shot of a scene with no camera (added to the
+    export): `points` from Framing(..., record=True).points(), the shot's simulator frames."""
+    return {"framing_frames": np.array(list(shot_frames), dtype=np.int64),
+            "framing_points": np.asarray(points, dtype=np.float64).reshape(-1, 3)}
 
 
 def read_shot(path: str | os.PathLike) -> Shot:
@@ -138,11 +162,26 @@ def read_shot(path: str | os.PathLike) -> Shot:
         except (KeyError, ValueError, TypeError, IndexError):
             raise bad("scene_name, scene_folder, scene_json: expected the scene record of "
                       "render --export-npz") from None
+    framing_frames, framing_points = _framing(arrays, bad)
     faces = arrays.get("faces")
     return Shot(name, np.ascontiguousarray(pos, dtype=np.float64),
                 np.asarray(arrays["times"], np.float64),
                 np.asarray(arrays["sim_frames"], np.int64), fps, sim_fps,
-                None if faces is None else np.asarray(faces), scene, overrides)
+                None if faces is None else np.asarray(faces), scene, overrides,
+                framing_frames, framing_points)
+
+
+def _framing(arrays: dict, bad) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(framing_frames, framing_points) when recorded, else (None, None)."""
+    if "framing_frames" not in arrays and "framing_points" not in arrays:
+        return None, None
+    frames, points = arrays.get("framing_frames"), arrays.get("framing_points")
+    if frames is None or points is None or frames.ndim != 1 or not len(frames) \
+            or frames.dtype.kind not in "iu" or points.ndim != 2 or points.shape[1] != 3 \
+            or not len(points) or points.dtype.kind != "f" or not np.all(np.isfinite(points)):
+        raise bad("framing_frames, framing_points: expected the framing record of render "
+                  "--export-npz: simulator frames (S,) and finite points (K, 3)")
+    return np.asarray(frames, np.int64), np.asarray(points, np.float64)
 
 
 def _positive(a: np.ndarray, key: str, bad) -> float:

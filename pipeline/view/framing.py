@@ -26,6 +26,14 @@ their depth (a cloth lying on the floor the whole shot), would put the eye at it
 height, edge on (an empty image): it is framed as if it spanned FLAT times its depth,
 from its lowest point up (Y+ from a point that high over its nearest point), so the eye
 looks at it from above. Eight running maxima hold the whole shot: no frame is kept.
+
+What the camera at another image size needs (`Framing(..., record=True).points()`, which
+`render --export-npz` records for `render --from`): only a_x depends on the size, so one
+point holding each of the other maxima is enough, and X+ and X- need only the points that
+beat in x (or -x) every point at least as high (z) before them: x + a_x z never decreases
+with x or z, rounding included, so a point matched or beaten in both holds no maximum that
+another does not, whatever a_x. The few dozen points kept give the eight maxima of every
+point of the shot, bit for bit, at any size (and the same vfov).
 """
 from __future__ import annotations
 
@@ -52,11 +60,14 @@ class Framing:
     frame as eight running maxima (order-independent: the same points give the same camera
     whatever their order)."""
 
-    def __init__(self, width: int, height: int, vfov: float = DEFAULT_VFOV) -> None:
+    def __init__(self, width: int, height: int, vfov: float = DEFAULT_VFOV,
+                 record: bool = False) -> None:
         self.width, self.height, self.vfov = int(width), int(height), float(vfov)
         self.a_y = (1.0 - 2.0 * MARGIN) * math.tan(math.radians(self.vfov) / 2.0)
         self.a_x = self.a_y * self.width / self.height
         self._max = np.full(8, -np.inf)  # X+, X-, Y+, Y-, max z, -min z, max y, -min y
+        # with `record`, the points that may hold a maximum at some image size (`points`)
+        self._held = np.empty((0, 3)) if record else None
 
     def add(self, points: np.ndarray) -> None:
         """Frame these points (N, 3) too."""
@@ -68,12 +79,40 @@ class Framing:
         self._max = np.maximum(self._max, [np.max(x + ax), np.max(ax - x), np.max(y + ay),
                                            np.max(ay - y), np.max(z), np.max(-z),
                                            np.max(y), np.max(-y)])
+        if self._held is not None:
+            self._held = self._holders(np.concatenate([self._held, p]))
 
     def include(self, other: Framing) -> None:
         """Frame what `other` (the same image size and field of view) frames too."""
         if (other.width, other.height, other.vfov) != (self.width, self.height, self.vfov):
             raise ValueError("framings of different images cannot be combined")
         self._max = np.maximum(self._max, other._max)
+        if self._held is not None:  # and what it holds (it must record too)
+            self._held = self._holders(np.concatenate([self._held, other.points()]))
+
+    def _holders(self, p: np.ndarray) -> np.ndarray:
+        """The points of p (N >= 1, 3) that hold a maximum of `add` at this a_y and any a_x:
+        one holding each maximum but X+ and X-, and, in order of z, highest first, the first
+        and each that beats in x (or -x) every point before it. (A point holding X+ may not
+        be one of those, but the first point reaching as far in x and z as it is, and holds
+        X+ too: one before it beating it in x would reach as far.)"""
+        x, y, z = p[:, 0], p[:, 1], p[:, 2]
+        order = np.argsort(-z)
+        stair = np.zeros(len(p), dtype=bool)
+        stair[0] = True
+        for u in (x[order], -x[order]):
+            stair[1:] |= u[1:] > np.maximum.accumulate(u)[:-1]
+        ay = self.a_y * z
+        tops = [np.argmax(v) for v in (y + ay, ay - y, z, -z, y, -y)]
+        return p[np.union1d(order[stair], tops)]
+
+    def points(self) -> np.ndarray:
+        """Points (K, 3) among those added that hold every maximum at any image size: a
+        Framing of any size that adds them alone gives the camera, to the bit, that adding
+        every point gives (needs record=True)."""
+        if self._held is None:
+            raise ValueError("this framing records no points: Framing(..., record=True)")
+        return self._held.copy()
 
     def camera(self) -> Camera:
         """The nearest camera looking down -z (up +y) that frames every point added."""
