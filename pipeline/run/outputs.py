@@ -760,7 +760,7 @@ class NpzWriter(_Atomic):
     faces (T, 3) int32 cloth triangles, uv (N, 2) float64, grid (2,) = (nh, nw), (0, 0)
     for a mesh cloth, which also has face_uv (T, 3, 2), the uv of each face corner; and
     what `render` adds by set_meta: fps, sim_fps, steps_per_frame and the scene record
-    that `render --from` reads (pipeline.run.shotfile: npz_format, scene_*).
+    that `render --from` reads (pipeline.run.shotfile: npz_format, scene_*, framing_*).
     Positions are kept in memory (N * 24 bytes per frame) until commit.
     """
 
