@@ -21,13 +21,13 @@ import numpy as np
 from clothjit import njit
 
 from .camera import Camera
-from .shade import Frame, fetch, fragment_stage, uncached_fragment_stage
+from .shade import Frame, fragment_stage, uncached_fragment_stage
 from .occlusion import DEFAULT_RADIUS as AO_RADIUS
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import TURNS as AO_TURNS
 from .occlusion import blur_pass, occlusion_pass, upsample_pass
 from .shaders import get_shader
-from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, light_visibility
+from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, visibility_pass
 from .textures import resolve
 from .visibility import VisibilityBuffer, run_groups
 
@@ -38,10 +38,8 @@ _DUMMY_TEX = np.zeros((1, 1, 3))
 _DUMMY_CUBE = np.zeros((6, 1, 1, 3))
 _DUMMY_TEX.flags.writeable = False  # same numba type as loaded (read-only) textures
 _DUMMY_CUBE.flags.writeable = False
-_OFF = np.ones(0, np.float32)  # Frame.occ without ambient occlusion
+_OFF = np.ones(0, np.float32)  # Frame.occ / Frame.vis without occlusion / shadows
 _ONE_PASS = (np.zeros(0, np.int32), 0, 1, np.zeros((0, 3)))  # Frame's fields, one shader
-_NO_SHADOW_MAP = (np.ones((0, 1, 1), np.float32), np.zeros((0, 3, 4)), np.zeros(0),
-                  np.zeros(0), 0.0, np.zeros((0, 3)))  # Frame's shadow fields without shadows
 VA_COLS = 12  # position 0:3, normal 3:6, uv 6:8, tangent 8:11 (shade.Frame.va)
 
 
@@ -95,17 +93,6 @@ def _pack_prims(verts, obj_of, p0, idx, v0, obj):
         obj_of[p0 + k] = obj
 
 
-@njit(cache=True)
-def _sample_visibility(f, out):
-    for s in range(f.prim.shape[0]):
-        m = f.prim[s]
-        if m >= 0:
-            p, n0, v, _, _, _ = fetch(f, s)
-            out[s] = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
-                                      (f.snormals[m, 0], f.snormals[m, 1], f.snormals[m, 2]),
-                                      f.lp, p, n0, v)
-
-
 def _inputs(shader, params):
     """(packed params, texture, height map, cube map, stage key) of `shader`."""
     tex = resolve("texture", params.get("texture")) if "texture" in shader.textures else _DUMMY_TEX
@@ -142,6 +129,7 @@ class Renderer:
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.acc = np.empty((0, 3))  # per pixel, with meshes of several shaders
+        self.vis = _OFF  # per sample, with shadows
         self.frame = None  # the last frame's shade.Frame
         # with ambient occlusion: half-resolution raw and filtered factors and depths, and
         # the factor of every pixel
@@ -261,7 +249,7 @@ class Renderer:
             t3 = clock()
         f = Frame(self.height, self.width, self.aa, groups, self.view.prim, self.view.bary,
                   self.view.rowlo, self.view.rowhi, self.verts, self.obj_of, self.va, kd,
-                  camera.eye, lp, li, bg, self.image, _OFF, *_NO_SHADOW_MAP, *_ONE_PASS)
+                  camera.eye, lp, li, bg, self.image, _OFF, _OFF, *_ONE_PASS)
         if shadows:
             f = self._shadows(f, nv, npr, lp, radius, params, groups)
         if params.get("ambient_occlusion", False) and not lines:
@@ -304,8 +292,13 @@ class Renderer:
         self.normals = _grow(self.normals, max(npr, 1), (3,), np.float64)
         facet_normals(self.va, self.verts[:npr], lp, self.normals)
         m = self.shadow_map
-        return f._replace(smap=m.lin, sviews=m.views, stanh=m.tanh, snear=m.near,
-                          sradius=radius, snormals=self.normals)
+        ns = self.view.prim.shape[0]
+        if self.vis.shape[0] != ns:
+            self.vis = np.empty(ns, np.float32)
+        for anchors in (True, False):
+            run_groups(visibility_pass, groups, (f, m.lin, m.views, m.tanh, m.near, radius,
+                                                 self.normals, anchors, self.vis), first=True)
+        return f._replace(vis=self.vis)
 
     def _occlusion(self, f, camera, params, groups):
         """Frame f with its pixels' ambient occlusion factors (occlusion.py)."""
@@ -331,11 +324,11 @@ class Renderer:
 
     def light_visibility(self) -> np.ndarray:
         """Per sample (row-major, float32) the light's visibility the last render's shaders
-        used: 1 without shadows and on the background (a debugging and testing aid)."""
-        out = np.ones(self.view.prim.shape[0], np.float32)
-        if self.frame is not None and self.frame.sviews.shape[0]:
-            _sample_visibility(self.frame, out)
-        return out
+        used (1 without shadows; undefined on the background): a debugging and testing
+        aid."""
+        if self.frame is None or not self.frame.vis.shape[0]:
+            return np.ones(self.view.prim.shape[0], np.float32)
+        return self.frame.vis.copy()
 
 
 _renderers: dict = {}

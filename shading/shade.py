@@ -48,7 +48,6 @@ from numba.extending import overload, typeof_impl
 from clothjit import STAGE, njit
 
 from .lighting import normalize
-from .shadow import light_visibility
 
 Frame = namedtuple("Frame", [
     "height", "width", "aa", "groups",  # output size, supersampling, row groups (threads)
@@ -60,8 +59,7 @@ Frame = namedtuple("Frame", [
     "eye", "lp", "li", "bg",  # 3-tuples of float
     "out",  # uint8 (height, width, 3)
     "occ",  # float32 (height * width,): ambient occlusion factor per pixel; (0,) when off
-    "smap", "sviews", "stanh", "snear", "sradius",  # shadow.ShadowMap's; 0 views when off
-    "snormals",  # float64 (prims, 3): shadow.facet_normals, with shadows
+    "vis",  # float32 (S,): the light's visibility per sample (shadow.py); (0,) when off
     # objects of several shaders: per object its pass (int32; (0,): one shader), this
     # pass and how many, each pixel's sum so far (float64 (height * width, 3))
     "obj_pass", "pass_id", "passes", "acc",
@@ -171,7 +169,7 @@ def _typeof_shader_key(value, context):
 
 _FRAGMENTS: dict[int, object] = {}  # key -> fragment (an @njit colour function)
 _run_time_keys = itertools.count(-1, -1)
-_SOURCES = ("lighting.py", "textures.py", "shadow.py")  # helpers the stage inlines
+_SOURCES = ("lighting.py", "textures.py")  # helpers a fragment inlines
 
 
 def shader_key(name: str, fragment, registered: bool) -> ShaderKey:
@@ -228,13 +226,8 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                     continue
                 else:
                     p, n0, v, uv, t, kd = fetch(f, s)
-                    vis = 1.0
-                    if f.sviews.shape[0]:
-                        m = f.prim[s]
-                        vis = light_visibility(f.smap, f.sviews, f.stanh, f.snear, f.sradius,
-                                               (f.snormals[m, 0], f.snormals[m, 1],
-                                                f.snormals[m, 2]), f.lp, p, n0, v)
-                    lit = (vis, np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
+                    lit = (np.float64(f.vis[s]) if f.vis.shape[0] else 1.0,
+                           np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
                                        cube, lit))
             if multi:
