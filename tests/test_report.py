@@ -515,3 +515,18 @@ def test_report_loads_in_a_real_browser(tmp_path):
         a = np.asarray(s.convert("RGB"))
     assert a.shape[:2] == (900, 1000)
     assert len(np.unique(a.reshape(-1, 3), axis=0)) > 50
+
+
+def test_variants_drawn_differently_share_one_simulation():
+    from pipeline.cli.report_plan import Variant
+
+    vs = [Variant(i, (), ov, "") for i, ov in enumerate([
+        ("render.shadows=false", "cloth.ks=500"), ("render.shadows=true", "cloth.ks=500"),
+        ("render.shadows=false", "cloth.ks=900"), ("light.radius=0.1", "cloth.ks=900")])]
+    chosen, of = report_runs.shared_simulations(vs)
+    assert [v.overrides for v in chosen] == [vs[0].overrides, vs[2].overrides]
+    assert [v.index for v in chosen] == [0, 1] and of == [0, 0, 1, 1]
+    # a camera changes the framing: not shared
+    chosen, of = report_runs.shared_simulations(
+        [Variant(0, (), ("camera.vfov=30",), ""), Variant(1, (), ("camera.vfov=40",), "")])
+    assert of == [0, 1]

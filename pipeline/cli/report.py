@@ -57,7 +57,7 @@ from .options import PROG, cluster_requested
 from .render import fmt_bytes
 from .report_html import render_html
 from .report_plan import ReportPlan, build_parser, plan_report
-from .report_runs import VariantRun, run_simulations
+from .report_runs import VariantRun, run_simulations, shared_simulations
 from .report_sheet import Cell, Grid, Report, SheetCanvas, diverged_image, short_message
 
 # A grid of keys (variant index, shader, time index or None), from which both the still
@@ -224,8 +224,8 @@ def build_report(plan: ReportPlan, runs: Sequence[VariantRun] | None = None,
     warm_up(plan)
     timings["warm-up"] = time.perf_counter() - t0
     if runs is None:
-        n = len(plan.variants)
-        by_frame = n == 1 and not cluster_requested(plan)  # else one tick per variant
+        n = len(shared_simulations(plan.variants)[0])
+        by_frame = n == 1 and not cluster_requested(plan)  # else one tick per simulation
         sim_bar = bar(plan.needed_frames[-1] if by_frame else n, "simulate",
                       "frame" if by_frame else "variant", show_progress, 0)
         t0 = time.perf_counter()
@@ -318,9 +318,10 @@ def _execute(args, err) -> int:
             what.append(writers["gif"].target)
         sizes = ", ".join(f"{p} ({fmt_bytes(p.stat().st_size)})" for p in what)
         n_img = sum(len(g.rows) * len(g.cols) for g in report.grids)
+        n_sim = len(shared_simulations(plan.variants)[0])
         tm = report.timings
         err.say(f"report: {n_img} image{'s' * (n_img != 1)} {plan.width}x{plan.height}, "
-                f"{len(plan.variants)} simulation{'s' * (len(plan.variants) != 1)} -> {sizes}; "
+                f"{n_sim} simulation{'s' * (n_sim != 1)} -> {sizes}; "
                 f"simulate {tm.get('simulate', 0):.2f} s, render {tm.get('render', 0):.2f} s, "
                 f"total {time.perf_counter() - t_wall:.2f} s")
     return 0

@@ -2,6 +2,7 @@
 each keeping only the frames the report shows."""
 from __future__ import annotations
 
+import dataclasses
 import multiprocessing
 import os
 import time
@@ -96,11 +97,37 @@ def _simulate_indexed(task: tuple) -> tuple[int, VariantRun]:
     return index, simulate_variant(*args)
 
 
+#: scene blocks that change only how frames are drawn: variants differing only in these
+#: share one simulation
+DRAWING_BLOCKS = ("render", "light")
+
+
+def shared_simulations(variants) -> tuple[list, list[int]]:
+    """(the variants to simulate, re-indexed 0, 1, ...; for each variant, the index of the
+    one whose simulation it shows): variants whose sweep overrides differ only in
+    DRAWING_BLOCKS keys (a render.shadows or light.radius sweep) share one."""
+    first: dict[tuple, int] = {}
+    chosen, of = [], []
+    for v in variants:
+        key = tuple(o for o in v.overrides if o.split("=", 1)[0].split(".")[0].strip()
+                    not in DRAWING_BLOCKS)
+        if key not in first:
+            first[key] = len(chosen)
+            chosen.append(dataclasses.replace(v, index=len(chosen)))
+        of.append(first[key])
+    return chosen, of
+
+
 def run_simulations(plan: ReportPlan, jobs: int | None = None, progress=None
                     ) -> list[VariantRun]:
-    """Every variant's simulation: one Dask task each with --workers / --scheduler, else
-    in this process when there is one variant or one job, else in a pool of `jobs` spawned
-    processes. Results do not depend on where they ran."""
+    """Every variant's simulation (shared between variants that differ only in how they
+    are drawn: shared_simulations): one Dask task each with --workers / --scheduler, else
+    in this process when there is one simulation or one job, else in a pool of `jobs`
+    spawned processes. Results do not depend on where they ran."""
+    chosen, of = shared_simulations(plan.variants)
+    if len(chosen) < len(plan.variants):
+        runs = run_simulations(dataclasses.replace(plan, variants=chosen), jobs, progress)
+        return [runs[k] for k in of]
     jobs = plan.jobs if jobs is None else jobs
     frames = plan.needed_frames
     n = len(plan.variants)
