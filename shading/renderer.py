@@ -21,11 +21,11 @@ import numpy as np
 from clothjit import njit
 
 from .camera import Camera
-from .shade import Frame, fragment_stage, uncached_fragment_stage
 from .occlusion import DEFAULT_RADIUS as AO_RADIUS
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import TURNS as AO_TURNS
 from .occlusion import blur_pass, occlusion_pass, upsample_pass
+from .shade import Frame, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
 from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, visibility_pass
 from .textures import resolve
@@ -127,6 +127,7 @@ class Renderer:
         self.va = None
         self.verts = self.obj_of = self.disp = self.normals = None
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
+        self.mesh_vertices = np.zeros(1, np.int64)  # mesh i's vertices: [v_i, v_i+1)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.acc = np.empty((0, 3))  # per pixel, with meshes of several shaders
         self.vis = _OFF  # per sample, with shadows
@@ -162,7 +163,7 @@ class Renderer:
         self.obj_of = _grow(self.obj_of, max(npr, 1), (), np.int32)
         kd = np.empty((max(len(meshes), 1), 3))
         self.casts = np.empty(len(meshes), bool)
-        self.mesh_vertices = np.empty(len(meshes) + 1, np.int64)  # mesh i: [v_i, v_i+1)
+        self.mesh_vertices = np.empty(len(meshes) + 1, np.int64)
         va, verts = self.va, self.verts
         v = p = 0
         for i, m in enumerate(meshes):
@@ -196,7 +197,8 @@ class Renderer:
         count_coverage=True also fills self.count (per sample, row-major) with the number
         of fragments each sample received (before the depth test): a debugging aid.
         timings: a dict that receives the seconds spent in each stage ("prepare",
-        "gather", "geometry" = project + setup + binning, "raster", "shadows", "shade").
+        "gather", "geometry" = project + setup + binning, "raster", "shadows" = the shadow
+        map, its look-ups and ambient occlusion, "shade").
         With params["shadows"], `light_visibility()` then gives each sample's visibility
         of the light, as the shaders saw it (shadow.py).
         """
@@ -273,8 +275,8 @@ class Renderer:
         return self.image
 
     def _shadows(self, f, nv, npr, lp, radius, params, groups):
-        """Frame f with the shadow map of the meshes that cast shadows (all but planes),
-        which the fragment stage looks up (shadow.py)."""
+        """Frame f with each sample's visibility of the light (shadow.py): a shadow map of
+        the meshes that cast shadows (all but planes), then the look-up passes."""
         size = int(params.get("shadow_map_size", MAP_SIZE))
         if size < 16:
             raise ValueError(f"shadow_map_size must be >= 16, got {size}")
