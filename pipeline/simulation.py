@@ -13,6 +13,7 @@ import numpy as np
 from clothjit import LOOK_EVERY, adjust_threads
 from pipeline.physics.errors import (DivergenceError, SelfCollisionWarning, StabilityWarning,
                                      StartTangledWarning)
+from pipeline.physics.contact import with_room
 from pipeline.physics.integrators import integrator_module
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
@@ -216,6 +217,11 @@ class Simulation:
         adjust_threads()
         done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
+        c = self.system.contact
+        if c is not None and c.self_on:
+            roomy = with_room(c)
+            if roomy is not c:
+                self.system = self.system._replace(contact=roomy)
         if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
             raise DivergenceError(self._divergence_message(kinetic, bound))
 

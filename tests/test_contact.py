@@ -68,6 +68,27 @@ def test_robust_contact_is_deterministic():
     assert runs[0] == runs[1]
 
 
+def test_a_candidate_list_that_overflows_gets_room_and_the_same_motion(monkeypatch):
+    """A cloth as thick as 0.76 of its spacing (as the 80x80 drape) lists dozens of pairs a
+    point; with room for one, the list overflows (the steps visit the hash), the simulation
+    doubles its room until it fits, and the cloth moves exactly as with room from the
+    start; the list is then in use."""
+    import pipeline.physics.contact as contact
+
+    runs = {}
+    for per in (64, 1):
+        monkeypatch.setattr(contact, "LISTED_PER_POINT", per)
+        sim = Simulation(load_scene(scene_path("selfCollision"), [
+            "simulation.contact=robust", "cloth.num_width_points=20",
+            "cloth.num_height_points=20", "cloth.thickness=0.04"]))
+        sim.advance(20)
+        runs[per] = (sim.positions.tobytes(), sim.system.contact)
+    tight = runs[1][1]
+    n = tight.rest.shape[1]
+    assert runs[1][0] == runs[64][0]
+    assert tight.listed.shape[0] >= 4 * n and tight.count[0] >= 0
+
+
 def test_the_fail_safe_holds_what_the_passes_cannot_resolve():
     """A small triangle driven down through a stack of 30 free layers 2 mm apart in one
     step: the stops, averaged per point, push layers through each other faster than their

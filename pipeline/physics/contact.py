@@ -20,8 +20,8 @@ rest:
 Pairs come from a candidate list of those within (1 + LIST_MARGIN) h, made on a spatial
 hash of the primitives' boxes (cells the size of the triangles' mean swept box, each pair
 found once, in its canonical cell) and made again only when some point has moved
-LIST_MARGIN h / 2 from where it was made; a step that moves further visits the hash
-directly. Everything is serial and in a fixed order: results are bit-for-bit the same on
+LIST_MARGIN h / 2 from where it was made; a step that moves further, or whose list did
+not fit (Simulation then doubles its room: with_room), visits the hash directly. Everything is serial and in a fixed order: results are bit-for-bit the same on
 every run and thread count.
 """
 from __future__ import annotations
@@ -43,7 +43,9 @@ CCD_ROUNDS = 4
 # point has moved LIST_MARGIN h / 2 from there (then no pair outside can have come within h,
 # nor meet on the straight paths of a step inside that range)
 LIST_MARGIN = 1.0
-LISTED_PER_POINT = 64  # room in the list; beyond it, the step visits the hash directly
+LISTED_PER_POINT = 64  # room in the list at first; with_room doubles it when it overflows
+MAX_LISTED_PER_POINT = 1024  # beyond this, the steps visit the hash directly
+OVERFLOWED = -2  # RobustContact.count: the list made at `anchor` did not fit
 IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
 TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
 STATS = 14  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
@@ -73,7 +75,8 @@ class RobustContact(NamedTuple):
     roots: np.ndarray  # (4,) scratch of the cubic's roots
     listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
-    count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list
+    count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list; OVERFLOWED: too many
+    #                    pairs at `anchor` (Simulation gives it more room: with_room)
     anchor: np.ndarray  # (3, N) the positions the list was made at
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
@@ -113,6 +116,18 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
+
+
+def with_room(c: RobustContact) -> RobustContact:
+    """c with twice the room in its candidate list if the list overflowed (and may grow),
+    else c itself: the list is made again at the next step, the hash no longer visited
+    every step (an 80x80 cloth lists about 73 pairs a point at rest)."""
+    n = c.rest.shape[1]
+    if c.count[0] != OVERFLOWED or c.listed.shape[0] >= MAX_LISTED_PER_POINT * n:
+        return c
+    cap = 2 * c.listed.shape[0]
+    return c._replace(listed=np.zeros((cap, 5), np.int64), listed_gap=np.zeros(cap),
+                      count=np.full(1, -1, np.int64))
 
 
 def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
@@ -334,7 +349,7 @@ def _collect(x, c, ids):
         return 0
     k = c.count[0]
     if k < 0 or k >= c.listed.shape[0]:
-        c.count[0] = -1  # full: no valid list
+        c.count[0] = OVERFLOWED  # no valid list until the points have moved (or more room)
         return 0
     for j in range(5):
         c.listed[k, j] = ids[j]
@@ -399,7 +414,9 @@ def _round(start, x, c, visit, inner, mode):
     """One visit of every pair in `mode` (0-2), from the candidate list where it holds (made
     again where the points have moved too far from where it was made), else the hash."""
     limit = 0.5 * LIST_MARGIN * c.thickness
-    drift = _drift(start, x, c.anchor, c.moved) if c.count[0] >= 0 else math.inf
+    # an overflowed list is tried again only where the points have moved from where it was
+    # (then the steps visit the hash)
+    drift = _drift(start, x, c.anchor, c.moved) if c.count[0] != -1 else math.inf
     if drift > limit:
         c.count[0] = 0
         c.stats[7] += 1.0
