@@ -71,8 +71,8 @@ def test_robust_contact_is_deterministic():
 def test_a_candidate_list_that_overflows_gets_room_and_the_same_motion(monkeypatch):
     """A cloth as thick as 0.76 of its spacing (as the 80x80 drape) lists dozens of pairs a
     point; with room for one, the list overflows (the steps visit the hash), the simulation
-    doubles its room until it fits, and the cloth moves exactly as with room from the
-    start; the list is then in use."""
+    makes room for them all, and the cloth moves exactly as with room from the start; the
+    list is then in use."""
     import pipeline.physics.contact as contact
 
     runs = {}

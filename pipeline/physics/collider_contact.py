@@ -17,9 +17,12 @@ taken as the cloth's relative motion, as the course pass takes it).
    a box: the separating axis of least overlap), its free ends weighted by inverse mass so the
    segment's deepest point moves the overlap plus SURFACE_GAP; rounds until none passes
    through (FACE_ROUNDS at most, else counted as not kept).
-Planes need neither: the course's plane pass already keeps every point on the side it came
-from, and a segment between two points on one side stays there. Mesh colliders keep the
-course's handling (their distance grid's level set at `thickness`), which is not exact.
+A plane needs only the first: a free point that ends the step on the other side from where
+it began (the course's plane pass puts it back, but the self-contact after it can push it
+through) goes back to just off the plane on its side, as the course's pass puts it
+(pipeline.physics.colliders.plane); a segment between two points on one side stays there.
+Mesh colliders keep the course's handling (their distance grid's level set at
+`thickness`), which is not exact.
 A pinned point inside a solid, or an edge of two pinned points through one, cannot be moved:
 it is counted (stats), with the first step it happened at and one such point.
 """
@@ -30,7 +33,7 @@ import numpy as np
 from clothjit import njit
 
 from .ccd import point_triangle_distance
-from .colliders import _to_rest, _to_world, box, sphere
+from .colliders import _to_rest, _to_world, box, plane, sphere
 
 SURFACE_GAP = 1e-4  # metres kept outside a surface (the course's box and plane keep the same)
 FACE_ROUNDS = 16
@@ -275,6 +278,24 @@ def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _plane_sides(x, x0, inv_mass, stats, params, frame, k):
+    """Every free point that ended the step on the other side of plane k from where it
+    began goes back to its side (plane.project, friction included); returns points moved."""
+    moved = 0
+    for p in range(x.shape[1]):
+        if inv_mass[p] == 0.0:
+            continue
+        s = _rest(frame, k, 0, x0, p)
+        e = _rest(frame, k, 1, x, p)
+        q = plane.project(params, k, 0, e[0], e[1], e[2], s[0], s[1], s[2])
+        if q[0] != e[0] or q[1] != e[1] or q[2] != e[2]:
+            x[0, p], x[1, p], x[2, p] = _world(frame, k, q[0], q[1], q[2])
+            stats[MOVED_OUT] += 1.0
+            moved += 1
+    return moved
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _faces(x, triangles, inv_mass, push, pushes, stats, kind, prm, frame, k, apply):
     """One round of stage 2 for collider k: (triangles in it that can move, triangles in it
     that pinned corners hold there), moving the first out when `apply`; (0, 0): every
@@ -352,7 +373,8 @@ def _pinned_inside(x, inv_mass, kind, params, frame, k):
 
 @njit(cache=True, nogil=True, error_model="numpy", pointer=True)
 def robust_colliders(x, x0, c, table):
-    """Stages 1 and 2 for every active sphere and box collider, in scene order, on the step
+    """Stages 1 and 2 for every active sphere and box collider, stage 1 for every plane, in
+    scene order, on the step
     from x0 to x (3, N), in place; returns the number of points and triangles moved. (The
     passes take plain arrays, not the two tables: numba's compile time grows with the
     types its functions take.)"""
@@ -361,6 +383,9 @@ def robust_colliders(x, x0, c, table):
     moved = 0
     for k in range(table.kinds.shape[0]):
         kind = table.kinds[k]
+        if table.active[k] != 0 and kind == plane.KIND:
+            moved += _plane_sides(x, x0, inv_mass, stats, table.params, frame, k)
+            continue
         if table.active[k] == 0 or (kind != sphere.KIND and kind != box.KIND):
             continue
         prm = table.params[k]

@@ -75,8 +75,9 @@ class RobustContact(NamedTuple):
     roots: np.ndarray  # (4,) scratch of the cubic's roots
     listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
-    count: np.ndarray  # (1,) int64 pairs listed; -1: no valid list; OVERFLOWED: too many
-    #                    pairs at `anchor` (Simulation gives it more room: with_room)
+    count: np.ndarray  # (2,) int64 pairs listed; -1: no valid list; OVERFLOWED: count[1]
+    #                    pairs at `anchor`, more than its room (Simulation makes room:
+    #                    with_room)
     anchor: np.ndarray  # (3, N) the positions the list was made at
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
@@ -111,7 +112,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros(4 * size, np.int64),
                       np.zeros((9, 4 * size)), np.zeros(4),
                       np.zeros((LISTED_PER_POINT * m, 5), np.int64),
-                      np.zeros(LISTED_PER_POINT * m), np.full(1, -1, np.int64),
+                      np.zeros(LISTED_PER_POINT * m), np.array([-1, 0], np.int64),
                       np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
     field = types.float64[:, ::1]
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
@@ -119,15 +120,16 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
 
 
 def with_room(c: RobustContact) -> RobustContact:
-    """c with twice the room in its candidate list if the list overflowed (and may grow),
-    else c itself: the list is made again at the next step, the hash no longer visited
-    every step (an 80x80 cloth lists about 73 pairs a point at rest)."""
+    """c with room in its candidate list for 1.25 times the pairs that overflowed it (at
+    least twice its room, at most MAX_LISTED_PER_POINT a point), else c itself: the list is
+    made again at the next step, the hash no longer visited every step (an 80x80 cloth
+    lists about 73 pairs a point at rest)."""
     n = c.rest.shape[1]
     if c.count[0] != OVERFLOWED or c.listed.shape[0] >= MAX_LISTED_PER_POINT * n:
         return c
-    cap = 2 * c.listed.shape[0]
+    cap = min(max(2 * c.listed.shape[0], int(1.25 * c.count[1])), MAX_LISTED_PER_POINT * n)
     return c._replace(listed=np.zeros((cap, 5), np.int64), listed_gap=np.zeros(cap),
-                      count=np.full(1, -1, np.int64))
+                      count=np.array([-1, 0], np.int64))
 
 
 def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
@@ -348,13 +350,11 @@ def _collect(x, c, ids):
     if d > (1.0 + LIST_MARGIN) * c.thickness or _rest_close(c, ids):
         return 0
     k = c.count[0]
-    if k < 0 or k >= c.listed.shape[0]:
-        c.count[0] = OVERFLOWED  # no valid list until the points have moved (or more room)
-        return 0
-    for j in range(5):
-        c.listed[k, j] = ids[j]
-    c.listed_gap[k] = d
-    c.count[0] = k + 1
+    if k < c.listed.shape[0]:
+        for j in range(5):
+            c.listed[k, j] = ids[j]
+        c.listed_gap[k] = d
+    c.count[0] = k + 1  # counted beyond the room too: with_room makes room for them all
     return 0
 
 
@@ -424,6 +424,9 @@ def _round(start, x, c, visit, inner, mode):
             for i in range(x.shape[1]):
                 c.anchor[a, i] = x[a, i]
         visit(x, x, inner, 3, _cell(x, x, inner))
+        if c.count[0] > c.listed.shape[0]:  # no valid list until the points have moved
+            c.count[1] = c.count[0]
+            c.count[0] = OVERFLOWED
         drift = _drift(start, x, c.anchor, c.moved)
     if c.count[0] >= 0 and drift <= limit:
         return visit(start, x, inner, 4 + mode, drift)
