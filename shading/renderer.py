@@ -25,7 +25,7 @@ from .occlusion import DEFAULT_RADIUS as AO_RADIUS
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import TURNS as AO_TURNS
 from .occlusion import blur_pass, occlusion_pass, upsample_pass
-from .shade import Frame, fragment_stage, uncached_fragment_stage
+from .shade import Frame, ShaderKey, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
 from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, visibility_pass
 from .textures import resolve
@@ -265,10 +265,11 @@ class Renderer:
                 self.acc = np.empty((n, 3))
             f = f._replace(obj_pass=np.array(mesh_pass, np.int32), passes=len(passes),
                            acc=self.acc)
+        extras = ShaderKey(int(bool(f.vis.shape[0] or f.occ.shape[0] or len(passes) > 1)))
         for k, (prm, tex, hmap, cube, key) in enumerate(inputs):
             stage = fragment_stage if key >= 0 else uncached_fragment_stage
-            run_groups(stage, groups, (f._replace(pass_id=k), prm, tex, hmap, cube, key),
-                       first=True)
+            run_groups(stage, groups, (f._replace(pass_id=k), prm, tex, hmap, cube, key,
+                                       extras), first=True)
         if clock:
             t5 = clock()
             timings.update(prepare=t1 - t0, gather=t2 - t1, shadows=t4 - t3, shade=t5 - t4)

@@ -205,14 +205,16 @@ def _colour_overload(key, p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit
     return colour
 
 
-def _fragment_stage(f, g, prm, tex, hmap, cube, key):
+def _fragment_stage(f, g, prm, tex, hmap, cube, key, extras):
     """The fragment stage of output rows g, g + f.groups, ... by the shader `key`.
 
-    With objects of several shaders (f.obj_pass not empty) the stage runs once per
-    shader, pass f.pass_id of f.passes, and shades only the samples of the objects of its
-    pass (and the background, in pass 0); each pixel's sum is kept in f.acc between passes
-    and written by the last."""
-    multi = f.obj_pass.shape[0] > 0
+    `extras` (a ShaderKey: numba compiles each value apart, so a frame without them runs
+    the plain loop, none of their branches): 1 when the frame has shadows (f.vis), ambient
+    occlusion (f.occ) or objects of several shaders (f.obj_pass). With several shaders the
+    stage runs once per shader, pass f.pass_id of f.passes, and shades only the samples of
+    the objects of its pass (and the background, in pass 0); each pixel's sum is kept in
+    f.acc between passes and written by the last."""
+    multi = extras and f.obj_pass.shape[0] > 0
     for y in range(g, f.height, f.groups):
         x0, x1 = begin_row(f, y)
         for x in range(x0, x1):
@@ -226,11 +228,13 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key):
                     continue
                 else:
                     p, n0, v, uv, t, kd = fetch(f, s)
-                    lit = (np.float64(f.vis[s]) if f.vis.shape[0] else 1.0,
-                           np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
+                    lit = (1.0, 1.0)
+                    if extras:
+                        lit = (np.float64(f.vis[s]) if f.vis.shape[0] else 1.0,
+                               np.float64(f.occ[y * f.width + x]) if f.occ.shape[0] else 1.0)
                     c = add(c, _colour(key, p, n0, v, uv, t, kd, f.lp, f.li, prm, tex, hmap,
                                        cube, lit))
-            if multi:
+            if extras and multi:
                 i = y * f.width + x
                 if f.pass_id > 0:
                     c = (c[0] + f.acc[i, 0], c[1] + f.acc[i, 1], c[2] + f.acc[i, 2])

@@ -291,7 +291,7 @@ def test_one_fragment_stage_specialised_per_shader():
     assert len(keys) == 2 and min(keys) >= 0
     for name in ("normal", "toon"):
         shading.render([near, far], cam, None, name)
-    compiled = {sig[-1].literal_value for sig in shade.fragment_stage.signatures}
+    compiled = {sig[-2].literal_value for sig in shade.fragment_stage.signatures}
     assert keys <= compiled and FLAT.stage_key() not in compiled
 
 

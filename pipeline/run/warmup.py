@@ -371,7 +371,9 @@ class RenderJob:
         from shading.shade import fragment_stage
 
         key = shading.shaders.get_shader(self.shader).stage_key()
-        return any(sig and getattr(sig[-1], "literal_value", None) == key
+        # (key, extras): the plain stage a frame without shadows or occlusion runs
+        return any(len(sig) > 1 and getattr(sig[-2], "literal_value", None) == key
+                   and getattr(sig[-1], "literal_value", None) == 0
                    for sig, *_ in _cache_index(fragment_stage))
 
 
