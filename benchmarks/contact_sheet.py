@@ -1,6 +1,7 @@
 """Course contact against robust contact, side by side (issue 43): frames of selfCollision
 and the 80x80 drape under each mode, with the edge-triangle crossing count of the
-independent checker (benchmarks/crossings.py) under every image.
+independent checker (benchmarks/crossings.py) and the free points inside a collider and
+cloth edges through one (benchmarks/collider_crossings.py) under every image.
 
     python benchmarks/contact_sheet.py                       # writes renders/report/contact.png
     python benchmarks/contact_sheet.py --out sheet.png --size 200
@@ -69,7 +70,7 @@ def sheet(size: int) -> np.ndarray:
 
     bench = _contact()
     count = bench._crossings.edge_triangle_crossings
-    cap = 34  # caption strip under each image, pixels
+    cap = 48  # caption strip under each image, pixels
     blocks = []
     for name in TIMES:
         runs = shots(name, bench)
@@ -84,14 +85,21 @@ def sheet(size: int) -> np.ndarray:
                 img = render_frame(scene, pos, model, shader="phong", width=size, height=size,
                                    aa=2, time=t, shot=framing)
                 n = count(pos, model.triangles)
+                v = bench.collider_violations(pos, bench.unique_edges(model.triangles),
+                                              scene.colliders, t, model.pinned)
+                inside = sum(len(c["inside"]) for c in v["colliders"])
+                through = sum(len(c["edges"]) for c in v["colliders"])
                 cell = Image.new("RGB", (size, size + cap), "white")
                 cell.paste(Image.fromarray(img), (0, 0))
                 draw = ImageDraw.Draw(cell)
                 draw.text((6, size + 3), f"{name}, {mode}, t = {t:g} s", fill="black")
                 draw.text((6, size + 18), f"{n} edge-triangle crossings",
                           fill="black" if n == 0 else (190, 0, 0))
+                draw.text((6, size + 33), f"colliders: {inside} points in, {through} edges "
+                          "through", fill="black" if inside + through == 0 else (190, 0, 0))
                 cells.append(np.asarray(cell))
-                print(f"  {name} {mode} t={t:g}: {n} crossings", flush=True)
+                print(f"  {name} {mode} t={t:g}: {n} crossings, {inside} points inside and "
+                      f"{through} edges through colliders", flush=True)
             rows.append(np.concatenate(cells, axis=1))
         blocks.append(np.concatenate(rows, axis=0))
     width = max(b.shape[1] for b in blocks)

@@ -57,6 +57,11 @@ def test_the_course_cloth_passes_through_itself_and_the_robust_one_never_does():
     assert max(robust) == 0
     stats = sim.system.contact.stats
     assert stats[1] > 0  # it did push pairs apart
+    # and no point of the cloth, which starts with its lowest row on the floor, left pushed
+    # through the floor (the independent collider checker)
+    v = CC.collider_violations(sim.positions, crossings.unique_edges(sim.model.triangles),
+                               sim.scene.colliders, sim.time, sim.model.pinned)
+    assert [(len(c["inside"]), len(c["edges"])) for c in v["colliders"]] == [(0, 0)]
 
 
 def test_robust_contact_is_deterministic():

@@ -279,14 +279,21 @@ def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _plane_sides(x, x0, inv_mass, stats, params, frame, k):
-    """Every free point that ended the step on the other side of plane k from where it
-    began goes back to its side (plane.project, friction included); returns points moved."""
+    """Every free point that ended the step on the other side of plane k from the side it
+    began on goes back to its side (plane.project, friction included); a point that began
+    on the plane took its side from its motion in the course's pass. Returns points
+    moved."""
+    prm = params[k]
     moved = 0
     for p in range(x.shape[1]):
         if inv_mass[p] == 0.0:
             continue
         s = _rest(frame, k, 0, x0, p)
         e = _rest(frame, k, 1, x, p)
+        d0 = (s[0] - prm[0]) * prm[3] + (s[1] - prm[1]) * prm[4] + (s[2] - prm[2]) * prm[5]
+        d1 = (e[0] - prm[0]) * prm[3] + (e[1] - prm[1]) * prm[4] + (e[2] - prm[2]) * prm[5]
+        if not ((d0 > 0.0 and d1 < 0.0) or (d0 < 0.0 and d1 > 0.0)):
+            continue
         q = plane.project(params, k, 0, e[0], e[1], e[2], s[0], s[1], s[2])
         if q[0] != e[0] or q[1] != e[1] or q[2] != e[2]:
             x[0, p], x[1, p], x[2, p] = _world(frame, k, q[0], q[1], q[2])
