@@ -18,8 +18,7 @@ from .fem import (_comb, _deformation, _dot, _hinge, _hinge_gradient, _membrane_
                   _membrane_hessian, _membrane_stress)
 from .constraints import shorten
 from .forces import CHUNKS, _chunk
-from .mesh_model import (BLOCK, HINGE_CONSTANTS, HINGE_ROWS, PARTS, TRIANGLE_CONSTANTS,
-                         TRIANGLE_ROWS, element_blocks)
+from .mesh_model import BLOCK, HINGE_CONSTANTS, PARTS, TRIANGLE_CONSTANTS, element_blocks
 
 
 @njit(cache=True, nogil=True, forceinline=True, no_cpython_wrapper=True)
@@ -184,26 +183,30 @@ def _sum_points(rows, start, slot, order, lo, hi, mass, gravity, f):
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def mesh_fem_forces(x, fem, mass, gravity, f):
-    """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem): each
-    part's element blocks into their rows and the sums of the points whose rows are all
-    there, then the sums of the other points."""
-    points, constants, rows = fem.block_points, fem.block_constants, fem.block_rows
+    """f[:] = mass * gravity + the FEM's elastic forces at x (3, N) (fem: MeshFem): each run
+    of parts (one per thread; a thread takes several if it must), part by part: its element
+    blocks into their rows (fem.block_row) and the sums of the points whose rows all lie in
+    the run and end there; then the sums of the other points."""
+    points, constants, rows, at = (fem.block_points, fem.block_constants, fem.block_rows,
+                                   fem.block_row)
     bounds, part_points, order = fem.part_blocks, fem.part_points, fem.point_order
-    start, slot, tb = fem.start, fem.row_slot, fem.tri_blocks
+    start, slot, tb, runs = fem.start, fem.row_slot, fem.tri_blocks, fem.runs
     ks, kh, kb = fem.k_stretch, fem.k_shear, fem.k_bend
     hinge_points, hinge_constants = 3 * tb * BLOCK, TRIANGLE_CONSTANTS * tb * BLOCK
-    for q in prange(PARTS):
-        for b in range(bounds[q, 0], bounds[q + 1, 0]):
-            r = np.uint64(TRIANGLE_ROWS * BLOCK * b)
-            _gather(x, points, 0, 3, b, rows, r)
-            _triangle_block(rows, r, constants, np.uint64(TRIANGLE_CONSTANTS * BLOCK * b), ks, kh)
-        for b in range(bounds[q, 1], bounds[q + 1, 1]):
-            r = np.uint64((TRIANGLE_ROWS * tb + HINGE_ROWS * b) * BLOCK)
-            _gather(x, points, hinge_points, 4, b, rows, r)
-            _hinge_block(rows, r, constants,
-                         np.uint64(hinge_constants + HINGE_CONSTANTS * BLOCK * b), kb)
-        _sum_points(rows, start, slot, order, part_points[q], part_points[q + 1], mass,
-                    gravity, f)
+    for t in prange(runs):
+        for q in range(t * PARTS // runs, (t + 1) * PARTS // runs):
+            for b in range(bounds[q, 0], bounds[q + 1, 0]):
+                r = np.uint64(at[b])
+                _gather(x, points, 0, 3, b, rows, r)
+                _triangle_block(rows, r, constants, np.uint64(TRIANGLE_CONSTANTS * BLOCK * b),
+                                ks, kh)
+            for b in range(bounds[q, 1], bounds[q + 1, 1]):
+                r = np.uint64(at[tb + b])
+                _gather(x, points, hinge_points, 4, b, rows, r)
+                _hinge_block(rows, r, constants,
+                             np.uint64(hinge_constants + HINGE_CONSTANTS * BLOCK * b), kb)
+            _sum_points(rows, start, slot, order, part_points[q], part_points[q + 1], mass,
+                        gravity, f)
     first, shared = part_points[PARTS], part_points[PARTS + 1] - part_points[PARTS]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, shared)
