@@ -17,10 +17,9 @@ taken as the cloth's relative motion, as the course pass takes it).
    a box: the separating axis of least overlap), its free ends weighted by inverse mass so the
    segment's deepest point moves the overlap plus SURFACE_GAP; rounds until none passes
    through (FACE_ROUNDS at most, else counted as not kept).
-A plane needs only the first: a free point that ends the step on the other side from where
-it began (the course's plane pass puts it back, but the self-contact after it can push it
-through) goes back to just off the plane on its side, as the course's pass puts it
-(pipeline.physics.colliders.plane); a segment between two points on one side stays there.
+A plane needs only the first, paths (the course's plane pass keeps a point on its side,
+but the self-contact after it can push it through): a segment between two points on one
+side stays there.
 Mesh colliders keep the course's handling (their distance grid's level set at
 `thickness`), which is not exact.
 A pinned point inside a solid, or an edge of two pinned points through one, cannot be moved:
@@ -118,6 +117,22 @@ def _sphere_face(prm, a, b, c):
         nx, ny, nz = _normal(a, b, c)
         return r, nx, ny, nz, u, v, w
     return r - d, qx / d, qy / d, qz / d, u, v, w
+
+
+# --- a plane: params point (3), unit normal (3), friction ----------------------------------
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _plane_entry(prm, s, e):
+    """Parameter u in [0, 1] where the path s -> e crosses the plane from the side it
+    starts on, with the normal towards that side; u = -1 when it stays on its side (or
+    starts on the plane: its side is the one the course's pass gave it)."""
+    d0 = (s[0] - prm[0]) * prm[3] + (s[1] - prm[1]) * prm[4] + (s[2] - prm[2]) * prm[5]
+    d1 = (e[0] - prm[0]) * prm[3] + (e[1] - prm[1]) * prm[4] + (e[2] - prm[2]) * prm[5]
+    if not ((d0 > 0.0 and d1 < 0.0) or (d0 < 0.0 and d1 > 0.0)):
+        return -1.0, 0.0, 0.0, 0.0
+    side = 1.0 if d0 > 0.0 else -1.0
+    return d0 / (d0 - d1), side * prm[3], side * prm[4], side * prm[5]
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -240,10 +255,10 @@ def _box_face(prm, a, b, c):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
-    """Stage 1 for collider k (a sphere or a box: kind, parameter rows params) on every free
-    point; returns points moved."""
+    """Stage 1 for collider k (a sphere, a box or a plane: kind, parameter rows params) on
+    every free point; returns points moved."""
     prm = params[k]
-    friction = prm[4] if kind == sphere.KIND else prm[15]
+    friction = prm[4] if kind == sphere.KIND else prm[15] if kind == box.KIND else prm[6]
     keep = 1.0 - friction
     moved = 0
     for p in range(x.shape[1]):
@@ -253,8 +268,10 @@ def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
         e = _rest(frame, k, 1, x, p)
         if kind == sphere.KIND:
             u, nx, ny, nz = _sphere_entry(prm, s, e)
-        else:
+        elif kind == box.KIND:
             u, nx, ny, nz = _box_entry(prm, s, e)
+        else:
+            u, nx, ny, nz = _plane_entry(prm, s, e)
         q = e
         if u >= 0.0:  # stop at the entry, keep the motion along the surface after it
             ex, ey, ez = s[0] + u * (e[0] - s[0]), s[1] + u * (e[1] - s[1]), s[2] + u * (e[2] - s[2])
@@ -267,37 +284,14 @@ def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
             stats[PATH_STOPS] += 1.0
         if kind == sphere.KIND:
             inside, qx, qy, qz = _sphere_out(prm, q)
-        else:
+        elif kind == box.KIND:
             inside, qx, qy, qz = box.outside(params, k, q[0], q[1], q[2])
+        else:  # a plane has no inside: a point on either side stays there
+            inside, qx, qy, qz = False, q[0], q[1], q[2]
         if inside:
             stats[MOVED_OUT] += 1.0
         if u >= 0.0 or inside:
             x[0, p], x[1, p], x[2, p] = _world(frame, k, qx, qy, qz)
-            moved += 1
-    return moved
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _plane_sides(x, x0, inv_mass, stats, params, frame, k):
-    """Every free point that ended the step on the other side of plane k from the side it
-    began on goes back to its side (plane.project, friction included); a point that began
-    on the plane took its side from its motion in the course's pass. Returns points
-    moved."""
-    prm = params[k]
-    moved = 0
-    for p in range(x.shape[1]):
-        if inv_mass[p] == 0.0:
-            continue
-        s = _rest(frame, k, 0, x0, p)
-        e = _rest(frame, k, 1, x, p)
-        d0 = (s[0] - prm[0]) * prm[3] + (s[1] - prm[1]) * prm[4] + (s[2] - prm[2]) * prm[5]
-        d1 = (e[0] - prm[0]) * prm[3] + (e[1] - prm[1]) * prm[4] + (e[2] - prm[2]) * prm[5]
-        if not ((d0 > 0.0 and d1 < 0.0) or (d0 < 0.0 and d1 > 0.0)):
-            continue
-        q = plane.project(params, k, 0, e[0], e[1], e[2], s[0], s[1], s[2])
-        if q[0] != e[0] or q[1] != e[1] or q[2] != e[2]:
-            x[0, p], x[1, p], x[2, p] = _world(frame, k, q[0], q[1], q[2])
-            stats[MOVED_OUT] += 1.0
             moved += 1
     return moved
 
@@ -390,13 +384,12 @@ def robust_colliders(x, x0, c, table):
     moved = 0
     for k in range(table.kinds.shape[0]):
         kind = table.kinds[k]
-        if table.active[k] != 0 and kind == plane.KIND:
-            moved += _plane_sides(x, x0, inv_mass, stats, table.params, frame, k)
+        if table.active[k] == 0 or kind not in (sphere.KIND, box.KIND, plane.KIND):
             continue
-        if table.active[k] == 0 or (kind != sphere.KIND and kind != box.KIND):
+        moved += _paths(x, x0, inv_mass, stats, kind, table.params, frame, k)
+        if kind == plane.KIND:  # no solid: no edge through it once no point is
             continue
         prm = table.params[k]
-        moved += _paths(x, x0, inv_mass, stats, kind, table.params, frame, k)
         for r in range(FACE_ROUNDS + 1):  # the last round only looks
             through, stuck = _faces(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind,
                                     prm, frame, k, r < FACE_ROUNDS)
