@@ -371,9 +371,13 @@ class RenderJob:
         from shading.shade import fragment_stage
 
         key = shading.shaders.get_shader(self.shader).stage_key()
-        # (key, extras): the plain stage a frame without shadows or occlusion runs
+        # (key, extras): the stage this scene's frames run, the plain one without shadows,
+        # occlusion or a collider's own shader (shade._fragment_stage)
+        rs = self.scene.render
+        extras = int(rs.shadows or rs.ambient_occlusion
+                     or any(c.shader not in (None, self.shader) for c in self.scene.colliders))
         return any(len(sig) > 1 and getattr(sig[-2], "literal_value", None) == key
-                   and getattr(sig[-1], "literal_value", None) == 0
+                   and getattr(sig[-1], "literal_value", None) == extras
                    for sig, *_ in _cache_index(fragment_stage))
 
 
