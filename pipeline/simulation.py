@@ -217,13 +217,18 @@ class Simulation:
         adjust_threads()
         done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
+        self.make_contact_room()
+        if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
+            raise DivergenceError(self._divergence_message(kinetic, bound))
+
+    def make_contact_room(self) -> None:
+        """After steps: robust contact's candidate list gets room if it overflowed
+        (contact.with_room; until then its steps visit the spatial hash)."""
         c = self.system.contact
         if c is not None and c.self_on:
             roomy = with_room(c)
             if roomy is not c:
                 self.system = self.system._replace(contact=roomy)
-        if done < steps or not kinetic <= bound:  # also catches a trip on the last step, NaN
-            raise DivergenceError(self._divergence_message(kinetic, bound))
 
     def advance(self, frames: int = 1) -> None:
         """Advance by whole frames (steps_per_frame steps each; fidelity auto: as chosen)."""

@@ -336,6 +336,7 @@ class AutoStepper:
         t0 = self.frame * self.frame_dt
         self._set_step(system, t0)
         done, kinetic, bound = self.sim._state.advance(system, n, self.frame * n)
+        self.sim.make_contact_room()  # (a new System: system_for makes its own again)
         self.steps_total += done
         self._last_guard = (kinetic, bound, done, n)
         return done == n and kinetic <= bound and np.all(np.isfinite(self.sim._state.x))
