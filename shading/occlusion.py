@@ -25,6 +25,7 @@ from clothjit import STAGE, njit
 
 from .lighting import cross, normalize, two_sided
 from .shade import fetch
+from .visibility import view_distance
 
 DEFAULT_RADIUS = 0.1  # metres (render params "ao_radius")
 TAPS = 8
@@ -47,12 +48,6 @@ TURNS = np.array([(math.cos(k * math.pi / 8.0), math.sin(k * math.pi / 8.0))
                   for k in range(16)])  # the 16 turns of the pattern
 
 
-@njit(cache=True, inline="always")
-def _linear(z, near, far):
-    """Window z -> distance along the camera's view axis."""
-    return 2.0 * far * near / ((far + near) - (2.0 * z - 1.0) * (far - near))
-
-
 @njit(**STAGE)
 def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist):
     """On the half-resolution grid (cell (i, j) = output pixel (2i, 2j), its first sample):
@@ -70,7 +65,7 @@ def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist)
                 continue
             p, n0, v, _, _, _ = fetch(f, s)
             n = two_sided(n0, v)
-            dc = _linear(depth[s], near, far)
+            dc = view_distance(depth[s], near, far)
             dist[c] = dc
             a = (1.0, 0.0, 0.0) if abs(n[0]) < 0.9 else (0.0, 1.0, 0.0)
             t = normalize(cross(n, a))
@@ -102,7 +97,7 @@ def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist)
                 qz = 0.5 * (vp[2, 0] * q[0] + vp[2, 1] * q[1] + vp[2, 2] * q[2] + vp[2, 3]) * iw
                 if zb >= qz + 0.5:
                     continue
-                db = _linear(zb, near, far)
+                db = view_distance(zb, near, far)
                 if db < cw - 0.02 * radius:
                     gap = dc - db
                     occ += 1.0 if gap <= radius else radius / gap
@@ -149,7 +144,7 @@ def upsample_pass(f, g, near, far, depth, dist, half, out):
             if f.prim[s] < 0:
                 out[y * f.width + x] = 1.0
                 continue
-            d = _linear(depth[s], near, far)
+            d = view_distance(depth[s], near, far)
             i0 = x // 2
             i1 = min(i0 + (1 if x & 1 else -1), hw - 1) if x > 0 else 0
             best = np.inf

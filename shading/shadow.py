@@ -34,7 +34,8 @@ from clothjit import STAGE, njit
 
 from .lighting import cross, dot, normalize, sub, two_sided
 from .shade import fetch
-from .visibility import VisibilityBuffer, run_groups
+from .camera import Camera
+from .visibility import VisibilityBuffer, run_groups, view_distance
 
 DEFAULT_RADIUS = 0.02  # metres, the light's default radius (render params "light_radius")
 MAP_SIZE = 1024  # texels per side of each view of the map (params "shadow_map_size")
@@ -46,28 +47,14 @@ _CUBE = (((1, 0, 0), (0, -1, 0)), ((-1, 0, 0), (0, -1, 0)), ((0, 1, 0), (0, 0, 1
          ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0)))
 
 
-def _look(eye, axis, up):
-    """A 3x4 look-at view matrix (OpenGL: the view looks down -z) from eye along axis."""
+def _view(eye, axis, up, tanh, near, far, size):
+    """The Camera at eye looking along axis with a square view of tan(fov / 2) = tanh (up
+    replaced when it is along the axis)."""
     f = np.asarray(axis, float) / np.linalg.norm(axis)
-    s = np.cross(f, up)
-    if np.linalg.norm(s) < 1e-6:  # axis along up: any other up will do
-        s = np.cross(f, (1.0, 0.0, 0.0) if abs(f[0]) < 0.9 else (0.0, 0.0, 1.0))
-    s /= np.linalg.norm(s)
-    u = np.cross(s, f)
-    m = np.empty((3, 4))
-    m[0, :3], m[1, :3], m[2, :3] = s, u, -f
-    m[:, 3] = -m[:, :3] @ np.asarray(eye, float)
-    return m
-
-
-def _projection(tanh, near, far):
-    """gluPerspective of a square view with tan(fov / 2) = tanh, as a 4x4 matrix."""
-    m = np.zeros((4, 4))
-    m[0, 0] = m[1, 1] = 1.0 / tanh
-    m[2, 2] = (far + near) / (near - far)
-    m[2, 3] = 2.0 * far * near / (near - far)
-    m[3, 2] = -1.0
-    return m
+    if np.linalg.norm(np.cross(f, up)) < 1e-6:
+        up = (1.0, 0.0, 0.0) if abs(f[0]) < 0.9 else (0.0, 0.0, 1.0)
+    return Camera(tuple(eye), tuple(np.asarray(eye, float) + f), tuple(up),
+                  math.degrees(2.0 * math.atan(tanh)), near, far, size, size)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -75,9 +62,6 @@ def _linear_depth(g, groups, depth, near, far, out, least):
     """Rows g, g + groups, ... of the map: window z of the rasteriser's depth test ->
     distance along the view axis (float32: half the memory the look-ups read);
     least[g] = the least."""
-    a = far + near
-    b = far - near
-    c = 2.0 * far * near
     n = out.shape[1]
     lo = np.inf
     for j in range(g, n, groups):
@@ -86,7 +70,7 @@ def _linear_depth(g, groups, depth, near, far, out, least):
             if z == np.inf:
                 out[j, i] = np.inf
             else:
-                d = c / (a - (2.0 * z - 1.0) * b)
+                d = view_distance(z, near, far)
                 out[j, i] = d
                 lo = min(lo, d)
     least[g] = lo
@@ -108,7 +92,7 @@ class ShadowMap:
         positions they use) from the light at `light` (3 numbers) of radius `radius`."""
         L = np.asarray(light, float)
         if caster_vertices.shape[0] == 0 or verts.shape[0] == 0:
-            self._views([], [], [], [])
+            self._views([])
             return
         lo, hi = caster_vertices.min(axis=0), caster_vertices.max(axis=0)
         c = 0.5 * (lo + hi)
@@ -118,34 +102,34 @@ class ShadowMap:
         near = max(0.5 * float(dist.min()), 1e-4)
         far = float(dist.max()) * 1.01 + 1e-4
         d = float(np.linalg.norm(c - L))
+        n = self.size
         if d > 1.02 * r:  # one view fitted to the casters' bounding sphere
             # widened by the penumbra beyond the casters' outline: seen from the light, it
             # reaches at most radius / (nearest caster distance) further (tan units)
             tanh = (math.tan(math.asin(r / d)) + radius / max(d - r, near)) * 1.02
-            views = [_look(L, c - L, (0.0, 1.0, 0.0))]
-            tans = [tanh]
+            cams = [_view(L, c - L, (0.0, 1.0, 0.0), tanh, near, far, n)]
         else:  # the light among the casters: a cube of six views
-            views = [_look(L, a, u) for a, u in _CUBE]
-            tans = [1.0] * 6
-        self._views(views, tans, [near] * len(views), [far] * len(views))
-        for k, view in enumerate(views):
-            vp = _projection(tans[k], near, far) @ np.vstack([view, (0.0, 0.0, 0.0, 1.0)])
+            cams = [_view(L, a, u, 1.0, near, far, n) for a, u in _CUBE]
+        self._views(cams)
+        for k, cam in enumerate(cams):
             buf = self.buffers[k]
-            buf.draw(va, nv, verts, verts.shape[0], vp, groups)
+            buf.draw(va, nv, verts, verts.shape[0], cam.view_projection(), groups)
             least = np.empty(groups)
             run_groups(_linear_depth, groups, (buf.depth, near, far, self.lin[k], least))
             # the blocker search reaches no nearer the light than the nearest caster
             self.near[k] = least.min()
 
-    def _views(self, views, tans, nears, fars):
-        k = len(views)
+    def _views(self, cams):
+        """The look-ups' arrays of these views (Cameras): each view's 3x4 view matrix and
+        tan(fov / 2) as its projection has it; near is set as each map is made."""
+        k = len(cams)
         while len(self.buffers) < k:
             self.buffers.append(VisibilityBuffer(self.size, self.size))
         if self.lin.shape[0] != k:
             self.lin = np.empty((k, self.size, self.size), np.float32)
-        self.views = np.array(views, float).reshape(k, 3, 4)
-        self.tanh = np.array(tans, float)
-        self.near = np.array(nears, float)
+        self.views = np.array([cam.view_matrix()[:3] for cam in cams]).reshape(k, 3, 4)
+        self.tanh = np.array([1.0 / cam.projection_matrix()[1, 1] for cam in cams])
+        self.near = np.zeros(k)
 
 
 

@@ -8,8 +8,16 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from clothjit import njit
 
 from . import raster as R
+
+
+@njit(cache=True, inline="always")
+def view_distance(z, near, far):
+    """A depth buffer's window z (raster.py) -> distance along the view axis, for a
+    perspective projection with these near and far planes."""
+    return 2.0 * far * near / ((far + near) - (2.0 * z - 1.0) * (far - near))
 
 
 class VisibilityBuffer:

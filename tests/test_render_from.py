@@ -12,17 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import cloth_dict, scene_dict
 from pipeline.cli import main
 from pipeline.run.shotfile import NPZ_FORMAT, read_shot
 
-SMALL = {  # no camera: framed over the whole shot
-    "cloth": {"width": 1, "height": 1, "num_width_points": 8, "num_height_points": 8,
-              "thickness": 0.0095, "orientation": 0, "damping": 0.2, "density": 150.0,
-              "ks": 5000.0, "enable_structural": True, "enable_shearing": True,
-              "enable_bending": True},
-    "sphere": {"origin": [0.5, 0.2, 0.5], "radius": 0.2, "friction": 0.3},
-    "plane": {"point": [0, 0, 0], "normal": [0, 1, 0], "friction": 0.5},
-}
+SMALL = scene_dict(  # no camera: framed over the whole shot
+    cloth_dict(8, 8, thickness=0.0095, damping=0.2, density=150.0, ks=5000.0),
+    spheres=[((0.5, 0.2, 0.5), 0.2, 0.3)], planes=[((0, 0, 0), (0, 1, 0), 0.5)])
 #: a sphere keyframed across the view, fast, under a camera of the scene's own
 MOVING = {
     **SMALL,
