@@ -12,7 +12,8 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.cli.bench import STRAIN_LIMIT, Run, is_stable, main, resized, scene_data, stability, with_model, with_stiffness, work_precision
+from pipeline.cli.bench import (STRAIN_LIMIT, Run, is_stable, main, own_strain_limit, resized,
+                                scene_data, stability, with_model, with_stiffness, work_precision)
 from pipeline.physics.fem import fem_energy
 from pipeline.physics.forces import spring_energy
 from pipeline.scene import INTEGRATORS
@@ -115,6 +116,21 @@ def test_stability_search_per_model():
     assert 1.3 <= by["rk4"]["ratio"] <= 1.7, by["rk4"]
     assert by["euler"]["ratio"] < 0.5
     assert by["implicit-euler"]["ratio"] > 20
+
+
+def test_vbd_on_soft_classic_springs_is_judged_against_its_own_stretch():
+    """VBD runs the classic springs without Provot's limit: a 100 N/m sheet hangs far past
+    STRAIN_LIMIT by itself, which is the model, not a blow-up. Its bound is that stretch plus
+    STRAIN_LIMIT, and it is stable up to one step per frame (the search's top for VBD)."""
+    data = with_stiffness(_pinned2("classic"), "classic", 100.0)
+    lo = _theory(data) / 16
+    own = own_strain_limit(data, "vbd", lo)
+    assert own > 2 * STRAIN_LIMIT  # it stretches by itself (Provot would stop it at 0.1)
+    assert own_strain_limit(data, "verlet", lo) == STRAIN_LIMIT  # Provot acts: the fixed bound
+    assert not is_stable(data, "vbd", 1.0 / 90, t_end=0.5)  # the fixed bound calls it crumpled
+    rows = stability(data, grid=6, ks_values=(100.0,), integrators=("vbd",), log=lambda *a: None)
+    frame = 1.0 / Run(data, "vbd").scene.simulation.frames_per_sec
+    assert rows[0]["dt_stable"] >= frame and rows[0]["strain_limit"] == pytest.approx(own)
 
 
 def test_fem_work_precision_converges():

@@ -332,36 +332,53 @@ def auto_point(scene, tolerance: float, t_end: float, reference: np.ndarray, mod
 
 # --- stability ------------------------------------------------------------------------------
 
-def is_stable(data: dict, integrator: str, dt: float, t_end: float = STABILITY_TIME) -> bool:
+def is_stable(data: dict, integrator: str, dt: float, t_end: float = STABILITY_TIME,
+              strain_limit: float = STRAIN_LIMIT) -> bool:
     """Stable: the shared energy guard never trips over t_end (at least 8 steps, at most
     MAX_STABILITY_STEPS), and at
     t_end / 2 and t_end the unconstrained probe step (Provot off) keeps the 99th percentile
-    |strain| of the structural and shearing springs below STRAIN_LIMIT (2.5 times Provot's
-    cap: a blow-up that the stretch limit turns into crumpling shows there; the first
-    steps' transient, e.g. of a huge implicit step, is not judged). The FEM has no cap: its
-    probe step is an ordinary step, and the same 0.25 bounds its strain (a huge implicit
-    step's overshoot in the middle of the fall counts as a failure too)."""
+    |strain| of the structural and shearing springs below `strain_limit` (STRAIN_LIMIT, 2.5
+    times Provot's cap: a blow-up that the stretch limit turns into crumpling shows there;
+    the first steps' transient, e.g. of a huge implicit step, is not judged). The FEM has no
+    cap: its probe step is an ordinary step, and the same 0.25 bounds its strain (a huge
+    implicit step's overshoot in the middle of the fall counts as a failure too). A classic
+    cloth run without Provot's limit (VBD) gets its own bound: own_strain_limit."""
     run = Run(data, integrator, dt=dt)
     total = min(max(round(t_end / dt), 8), MAX_STABILITY_STEPS)
-    if not run.advance(total // 2) or run.probe_strain() > STRAIN_LIMIT:
+    if not run.advance(total // 2) or run.probe_strain() > strain_limit:
         return False
-    return run.advance(total - total // 2) and run.probe_strain() <= STRAIN_LIMIT
+    return run.advance(total - total // 2) and run.probe_strain() <= strain_limit
+
+
+def own_strain_limit(data: dict, integrator: str, dt: float,
+                     t_end: float = STABILITY_TIME) -> float:
+    """The strain bound of a run at step dt: STRAIN_LIMIT, plus, on a classic cloth run
+    without Provot's limit (VBD: the springs' energy alone), the strain the same run
+    reaches at the small step dt: a soft cloth without the limit stretches that far by
+    itself (a sheet of 100 N/m springs hangs 30 % long), and only strain beyond it is a
+    blow-up. math.inf where that run itself diverges (the search then reports '<')."""
+    run = Run(data, integrator, dt=dt)
+    if not run.system.classic or run.system.stretch_limit:
+        return STRAIN_LIMIT
+    if not run.advance(min(max(round(t_end / dt), 8), MAX_STABILITY_STEPS)):
+        return math.inf
+    return STRAIN_LIMIT + run.probe_strain()
 
 
 def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
-                        iterations: int = 6, t_end: float = STABILITY_TIME
-                        ) -> tuple[float, str]:
+                        iterations: int = 6, t_end: float = STABILITY_TIME,
+                        strain_limit: float = STRAIN_LIMIT) -> tuple[float, str]:
     """Largest stable step in [lo, hi]: scan up from lo by factors of 2 to the first
     unstable step, then bisect (in log dt) between it and the last stable one, so the answer
     is the first failure (stability need not be monotone in dt: a few huge steps can pass).
     Returns (dt, note): note '' , '>=' (stable up to hi) or '<' (unstable at lo). Each
     trial simulates t_end seconds (is_stable)."""
-    if not is_stable(data, integrator, lo, t_end):
+    if not is_stable(data, integrator, lo, t_end, strain_limit):
         return lo, "<"
     stable = lo
     while True:
         trial = min(2.0 * stable, hi)
-        if not is_stable(data, integrator, trial, t_end):
+        if not is_stable(data, integrator, trial, t_end, strain_limit):
             unstable = trial
             break
         if trial >= hi:
@@ -369,7 +386,7 @@ def largest_stable_step(data: dict, integrator: str, lo: float, hi: float,
         stable = trial
     for _ in range(iterations):
         mid = math.sqrt(stable * unstable)
-        if is_stable(data, integrator, mid, t_end):
+        if is_stable(data, integrator, mid, t_end, strain_limit):
             stable = mid
         else:
             unstable = mid
@@ -393,13 +410,17 @@ def stability(scene, grid: int = 10, ks_values=None, integrators=INTEGRATORS,
         dt_theory = 2.0 / omega
         gamma = drag_gamma(probe.system.damping, probe.dt0)
         dt_euler = 2.0 * gamma / (gamma * gamma + omega * omega)
+        frame_dt = 1.0 / probe.scene.simulation.frames_per_sec
         for name in integrators:
             lo = dt_theory / 16 if name != "euler" else min(dt_theory, dt_euler) / 4
             hi = dt_theory * (200 if name in ("implicit-euler", "xpbd") else 16)
+            if name == "vbd":  # no explicit limit: searched up to one step per frame
+                hi = max(hi, frame_dt)
             t0 = time.perf_counter()
-            dt, note = largest_stable_step(data, name, lo, hi, t_end=t_end)
+            limit = own_strain_limit(data, name, lo, t_end)
+            dt, note = largest_stable_step(data, name, lo, hi, t_end=t_end, strain_limit=limit)
             rows.append({"model": model, "integrator": name, "stiffness": ks,
-                         "dt_stable": dt, "bound": note,
+                         "dt_stable": dt, "bound": note, "strain_limit": limit,
                          "omega_max": omega, "dt_theory": dt_theory,
                          "dt_verlet_damped": dt_verlet, "dt_euler_theory": dt_euler,
                          "ratio": dt / dt_theory})
