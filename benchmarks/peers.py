@@ -3,11 +3,28 @@
     python benchmarks/peers.py                          # grids 50, 100, 200; 3 rounds
     python benchmarks/peers.py --sizes 50,100 --rounds 5 --threads 1
     python benchmarks/peers.py --peers taichi,warp,taichi-colored --precision f32
+    python benchmarks/peers.py --vbd --threads 1 --rounds 4   # VBD against NVIDIA Newton
 
 Flags: --sizes (grids), --rounds (>= 3), --threads (numba threads for ours, Taichi's
 cpu_max_num_threads; Warp's CPU launches use one thread), --peers (taichi, warp,
-taichi-colored), --precision (the peers' f64, the default, or f32), --venv and
---peer-python (where the peers' environment is made, and by which Python).
+taichi-colored; under --vbd newton, newton-no-self-contact), --precision (the peers' f64,
+the default, or f32), --venv and --peer-python (where the peers' environment is made, and by
+which Python), --vbd and --frames (the VBD case below, frames a round, default 60).
+
+The VBD case (--vbd, issue 44): NVIDIA Newton's cloth_hanging example (HANGING below: 65 x
+33 points, 0.1 m cells, the left edge pinned, 10 substeps x 10 iterations per 1/60 s frame)
+run by Newton's own SolverVBD (newton 1.8.0 from PyPI with warp-lang 1.19.0, in the same
+venv; on the CPU, float32, one thread), with its self-contact on as the example has it
+(`newton`) and off (`newton-no-self-contact`), against the same scene rebuilt as our FEM
+cloth under `"integrator": "vbd"` (hanging_scene says how each number maps, and what does
+not), without self-collision (`ours`), with the course's self-collision
+(`ours+self-collision`) and with the robust contact (`ours+robust`). Every run is --frames
+frames from the start, warm (its untimed first run includes Newton's compile, ~35-90 s on
+a cold Warp cache), alternately, --rounds rounds; printed: frames per second (median, best
+round), where each cloth is (its lowest point above the ground, its largest distance to
+Newton's), and ours / Newton's frame rate for every pair. The two are different models
+(Newton's membrane is Stable Neo-Hookean with strain-rate damping, its contact a penalty
+inside the descent), so the distances say how alike the motion is, not an error.
 
 The case: scenes/pinned2.json (a cloth pinned at two corners; structural, shearing and
 bending springs; Verlet with damping; Provot's stretch limit at 10 %) rescaled to each grid
@@ -78,8 +95,13 @@ REFERENCE = ROOT.parent / "shared" / "reference" / "cs184_ref"
 DEFAULT_VENV = Path.home() / ".cache" / "clothpipe-peers" / "venv"
 # versions checked on this project's machine (Python 3.11, x86-64): both have wheels there
 PACKAGES = {"taichi": "taichi==1.7.4", "warp": "warp-lang==1.19.0",
-            "taichi-colored": "taichi==1.7.4"}
-PEERS = ("taichi", "warp", "taichi-colored")
+            "taichi-colored": "taichi==1.7.4", "newton": "newton==1.8.0",
+            "newton-no-self-contact": "newton==1.8.0"}
+# installed with the package, so that pip keeps the venv's Warp (newton asks warp-lang>=1.17)
+WITH = {"newton==1.8.0": ["warp-lang==1.19.0"]}
+NEWTON_PEERS = ("newton", "newton-no-self-contact")  # --vbd's peers
+PINNED2_PEERS = ("taichi", "warp", "taichi-colored")  # the pinned2 case's
+PEERS = (*PINNED2_PEERS, *NEWTON_PEERS)
 # the largest distance to ours, after a simulated second, of a peer that runs the same model
 AGREEMENT = {"f64": 1e-3, "f32": 2e-2}  # m; float32: see the module docstring
 # the largest distance to ours after 10 frames (1/9 s) of a peer that runs the same model
@@ -434,7 +456,108 @@ class WarpPeer:
         return self.pos.numpy()[self.cur].astype(np.float64)
 
 
-def make_peer(name: str, threads: int, precision: str) -> TaichiPeer | WarpPeer:
+# Newton's cloth_hanging example (newton/examples/cloth/example_cloth_hanging.py in newton
+# 1.8.0), the numbers of its `vbd` branch as written there: a 64 x 32 cell grid (65 x 33
+# points) of 0.1 m cells at z = 4, turned 90 degrees about z, its left edge (33 points)
+# fixed; 0.1 kg a point; membrane tri_ke (mu) and tri_ka (lambda) with damping tri_kd;
+# bending edge_ke per unit edge length; a ground plane under a soft contact; Newton's default
+# gravity, -9.81 m/s^2 along z; 10 substeps of 10 iterations per 1/60 s frame; SolverVBD with
+# self-contact on.
+HANGING = {"dim_x": 64, "dim_y": 32, "cell": 0.1, "height": 4.0, "mass": 0.1,
+           "tri_ke": 1.0e3, "tri_ka": 1.0e3, "tri_kd": 1.0e2, "edge_ke": 1.0e1,
+           "edge_kd": 0.0, "particle_radius": 0.05, "soft_contact_ke": 1.0e2,
+           "soft_contact_kd": 1.0e2, "soft_contact_mu": 1.0, "self_contact_margin": 0.02,
+           "self_contact_gap": 0.01, "fps": 60, "steps_per_frame": 10, "iterations": 10,
+           "gravity": 9.81}
+
+
+class NewtonPeer:
+    """Newton's own SolverVBD on its cloth_hanging scene (HANGING), built and stepped as the
+    example does (a frame's substeps captured once as a graph and replayed), without a
+    viewer; `self_contact` as the example (on) or off."""
+
+    def __init__(self, self_contact: bool) -> None:
+        import newton
+        import warp as wp
+
+        wp.config.quiet = True
+        wp.init()
+        self.wp, self.newton, self.self_contact = wp, newton, self_contact
+
+    def info(self) -> dict:
+        contact = (f"self-contact on (margin {HANGING['self_contact_margin']} m, gap "
+                   f"{HANGING['self_contact_gap']} m)" if self.self_contact else "self-contact off")
+        return {"version": f"newton {self.newton.__version__}, warp-lang {self.wp.__version__}",
+                "threads": "device cpu, 1 thread (Warp runs a CPU launch on one thread)",
+                "provot": f"none (SolverVBD, {contact})"}
+
+    def setup(self, spec: dict) -> None:
+        self.spec = spec
+        self.reset()
+
+    def reset(self) -> None:
+        """A new model, solver and captured frame: Newton's solver keeps state between steps
+        (previous positions, contact lists), so the run starts exactly as the first did."""
+        wp, newton, c = self.wp, self.newton, self.spec
+        with wp.ScopedDevice("cpu"):
+            builder = newton.ModelBuilder()
+            builder.add_ground_plane()
+            builder.add_cloth_grid(
+                pos=wp.vec3(0.0, 0.0, c["height"]),
+                rot=wp.quat_from_axis_angle(wp.vec3(0.0, 0.0, 1.0), wp.pi * 0.5),
+                vel=wp.vec3(0.0, 0.0, 0.0), dim_x=c["dim_x"], dim_y=c["dim_y"],
+                cell_x=c["cell"], cell_y=c["cell"], mass=c["mass"], fix_left=True,
+                edge_ke=c["edge_ke"], edge_kd=c["edge_kd"],
+                particle_radius=c["particle_radius"], tri_ke=c["tri_ke"], tri_ka=c["tri_ka"],
+                tri_kd=c["tri_kd"])
+            builder.color(include_bending=True)
+            self.model = model = builder.finalize()
+            model.soft_contact_ke = c["soft_contact_ke"]
+            model.soft_contact_kd = c["soft_contact_kd"]
+            model.soft_contact_mu = c["soft_contact_mu"]
+            self.solver = newton.solvers.SolverVBD(
+                model=model, iterations=c["iterations"],
+                particle_enable_self_contact=self.self_contact,
+                particle_self_contact_margin=c["self_contact_margin"],
+                particle_self_contact_gap=c["self_contact_gap"])
+            self.states = [model.state(), model.state()]
+            self.control = model.control()
+            self.pipeline = newton.CollisionPipeline(model)
+            self.contacts = self.pipeline.contacts()
+            with wp.ScopedCapture() as capture:
+                self._frame()
+            self.graph = capture.graph
+
+    def _frame(self) -> None:
+        """A frame's substeps, as the example's simulate() (an even count: state 0 ends as
+        the frame's result, as the graph replays it)."""
+        dt = 1.0 / self.spec["fps"] / self.spec["steps_per_frame"]
+        for _ in range(self.spec["steps_per_frame"]):
+            s0, s1 = self.states
+            s0.clear_forces()
+            self.pipeline.collide(s0, self.contacts)
+            self.solver.step(s0, s1, self.control, self.contacts, dt)
+            self.states = [s1, s0]
+
+    def run(self, steps: int) -> None:
+        frames, rest = divmod(steps, self.spec["steps_per_frame"])
+        if rest:
+            raise ValueError(f"{steps} steps: not whole frames")
+        for _ in range(frames):
+            self.wp.capture_launch(self.graph)
+        self.wp.synchronize_device("cpu")
+
+    def positions(self) -> np.ndarray:
+        """(N, 3) in our frame: Newton's z up to our y, its grid rows and columns to our z
+        and x (Newton's point (X, Y, Z) is ours (Y, Z - height + 1, -X); the point order is
+        the same), so our cloth lies at y = 1 like a horizontal grid cloth."""
+        q = self.states[0].particle_q.numpy().astype(np.float64)
+        return np.stack([q[:, 1], q[:, 2] - self.spec["height"] + 1.0, -q[:, 0]], axis=1)
+
+
+def make_peer(name: str, threads: int, precision: str) -> TaichiPeer | WarpPeer | NewtonPeer:
+    if name in NEWTON_PEERS:
+        return NewtonPeer(self_contact=name == "newton")
     if name == "warp":
         return WarpPeer(threads, precision)
     return TaichiPeer(threads, precision, coloured=name == "taichi-colored")
@@ -471,12 +594,12 @@ def serve(name: str, threads: int, precision: str) -> None:
                 reply({"python": platform.python_version(), "precision": precision,
                        **peer.info()})
             elif op == "setup":
-                model = Model(msg["model"], np.load(msg["init"]))
+                spec = msg["model"]
                 trace, snapshots = set(msg["trace"]), []
                 t0 = time.perf_counter()
-                peer.setup(model)
+                peer.setup(spec if name in NEWTON_PEERS else Model(spec, np.load(msg["init"])))
                 for frame in range(1, int(msg["frames"]) + 1):
-                    peer.run(model.steps_per_frame)
+                    peer.run(int(spec["steps_per_frame"]))
                     if frame in trace:
                         snapshots.append(peer.positions())
                 warmup = time.perf_counter() - t0
@@ -527,7 +650,8 @@ def ensure_venv(venv: Path, python: str, peers: list[str], log: Path) -> dict[st
             if have.returncode == 0 and (not version or have.stdout.strip() == version):
                 continue
             print(f"installing {spec} into {venv} ...", file=sys.stderr, flush=True)
-            got = subprocess.run([str(vpy), "-m", "pip", "install", "-q", spec],
+            got = subprocess.run([str(vpy), "-m", "pip", "install", "-q", spec,
+                                  *WITH.get(spec, [])],
                                  capture_output=True, text=True, check=False)
             out.write(got.stdout + got.stderr)
             if got.returncode != 0:
@@ -700,16 +824,31 @@ def measure(size: int, peers: list[str], skipped: dict[str, str], vpy: Path, arg
         t0 = time.perf_counter()
         sim.advance(frames)
         times["ours"].append(time.perf_counter() - t0)
-        for p, worker in list(workers.items()):
-            try:
-                times[p].append(worker.ask(op="run", steps=steps)["seconds"])
-            except PeerError as exc:
-                skipped[p] = str(exc)
-                worker.close()
-                del workers[p], times[p]
-    finals = {"ours": sim.positions.copy()}
+        run_peers(workers, times, skipped, steps)
+    finals = {"ours": sim.positions.copy(), **collect_finals(workers, times, skipped, tmp, size)}
+    return Case(size, frames, steps, steps * sim.dt, times, warmups, finals, trace_frames,
+                traces, raw, x0)
+
+
+def run_peers(workers: dict[str, PeerProcess], times: dict[str, list[float]],
+              skipped: dict[str, str], steps: int) -> None:
+    """One timed run of `steps` steps from the initial state by each worker, in turn; a
+    worker that fails is closed and dropped (with its times)."""
+    for p, worker in list(workers.items()):
+        try:
+            times[p].append(worker.ask(op="run", steps=steps)["seconds"])
+        except PeerError as exc:
+            skipped[p] = str(exc)
+            worker.close()
+            del workers[p], times[p]
+
+
+def collect_finals(workers: dict[str, PeerProcess], times: dict[str, list[float]],
+                   skipped: dict[str, str], tmp: Path, tag: object) -> dict[str, np.ndarray]:
+    """Each worker's current positions (N, 3); then the workers are closed."""
+    finals = {}
     for p, worker in workers.items():
-        path = tmp / f"{p}{size}.npy"
+        path = tmp / f"{p}{tag}.npy"
         try:
             worker.ask(op="save", path=str(path))
             finals[p] = np.load(path)
@@ -717,8 +856,7 @@ def measure(size: int, peers: list[str], skipped: dict[str, str], vpy: Path, arg
             skipped[p] = str(exc)
             del times[p]
         worker.close()
-    return Case(size, frames, steps, steps * sim.dt, times, warmups, finals, trace_frames,
-                traces, raw, x0)
+    return finals
 
 
 def distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -788,14 +926,179 @@ def report(case: Case, peers: list[str], skipped: dict[str, str], precision: str
     return line
 
 
+# ============================================================ the VBD case (--vbd), the driver
+# Newton's cloth_hanging (HANGING) as our FEM cloth under `vbd`, against Newton's SolverVBD.
+
+# our runs: (name, simulation.self_collision, simulation.contact)
+OUR_VBD_RUNS = (("ours", False, "course"), ("ours+self-collision", True, "course"),
+                ("ours+robust", True, "robust"))
+
+
+def uniform_mass_map(nw: int, nh: int) -> list[list[float]]:
+    """`cloth.mass_map` rows (top row first) that turn the FEM's lumped masses (a third of
+    each adjacent triangle's area) into one mass for every point, as Newton's grid has:
+    6 / (the point's triangles), on the FEM's triangles (A, C, B), (B, C, D) of each cell."""
+    count = np.zeros((nh, nw))
+    for corners in (((0, 0), (1, 0), (0, 1)), ((0, 1), (1, 0), (1, 1))):
+        for di, dj in corners:
+            count[di:nh - 1 + di, dj:nw - 1 + dj] += 1
+    return (6.0 / count)[::-1].tolist()
+
+
+def hanging_scene(self_collision: bool, contact: str) -> dict:
+    """HANGING as our scene: the FEM (a triangle membrane with dihedral bending, as Newton's
+    cloth; the classic model is springs), its stiffnesses from Newton's at small strain:
+    Newton's Stable Neo-Hookean membrane (mu = tri_ke, lambda = tri_ka) is mu eps:eps +
+    lambda / 2 tr(eps)^2 there, so stretch = 2 mu + lambda (strain along u, v held) and
+    shear = mu; Newton's bending 0.5 edge_ke |e| theta^2 is ours D |e|^2 / (2 (A1 + A2))
+    theta^2 with D = edge_ke * cell on the grid's axis hinges (the diagonal ones are sqrt 2
+    stiffer in ours). Every point 0.1 kg (a mass map over the FEM's lumped masses). Our
+    horizontal cloth lies at y = 1, so the ground (Newton's z = 0) is at y = 1 - height, raised
+    by Newton's particle radius (its ground contact holds points that far above it). Not
+    matched: Newton's damping (tri_kd: strain-rate damping of the membrane; ours none,
+    `damping` 0), its penalty ground contact (ours the plane collider, friction 1 for mu 1)
+    and its self-contact (ours: see OUR_VBD_RUNS; thickness = gap / 2, points 2 * thickness
+    apart)."""
+    c = HANGING
+    nw, nh = c["dim_x"] + 1, c["dim_y"] + 1
+    width, height = c["dim_x"] * c["cell"], c["dim_y"] * c["cell"]
+    density = c["mass"] / c["cell"] ** 2
+    cloth = {"width": width, "height": height, "num_width_points": nw, "num_height_points": nh,
+             "thickness": c["self_contact_gap"] / 2, "orientation": 0, "damping": 0.0,
+             "density": density, "ks": 1000.0, "enable_structural": True,
+             "enable_shearing": True, "enable_bending": True,
+             "pinned": [[0, i] for i in range(nh)], "mass_map": uniform_mass_map(nw, nh),
+             "fem": {"stretch": 2 * c["tri_ke"] + c["tri_ka"], "shear": c["tri_ke"],
+                     "bending": c["edge_ke"] * c["cell"], "density": density}}
+    ground = 1.0 - c["height"] + c["particle_radius"]
+    return {"cloth": cloth,
+            "plane": {"point": [0.0, ground, 0.0], "normal": [0.0, 1.0, 0.0],
+                      "friction": min(1.0, c["soft_contact_mu"])},
+            "simulation": {"model": "fem", "integrator": "vbd", "iterations": c["iterations"],
+                           "frames_per_sec": c["fps"], "steps_per_frame": c["steps_per_frame"],
+                           "gravity": [0.0, -c["gravity"], 0.0],
+                           "self_collision": self_collision, "contact": contact}}
+
+
+class VbdCase(NamedTuple):
+    """The VBD case's measurements (as Case's fields of the same names)."""
+
+    frames: int
+    times: dict[str, list[float]]
+    warmups: dict[str, float]
+    finals: dict[str, np.ndarray]
+    trace_frames: list[int]
+    traces: dict[str, np.ndarray]
+
+
+def traced_run(sim: Any, frames: int, trace_frames: list[int]) -> np.ndarray:
+    """Advance `frames` frames; the positions after each of trace_frames."""
+    trace = []
+    for frame in range(1, frames + 1):
+        sim.advance(1)
+        if frame in trace_frames:
+            trace.append(sim.positions.copy())
+    return np.array(trace)
+
+
+def measure_vbd(peers: list[str], skipped: dict[str, str], vpy: Path, args: Any,
+                simulation: Any, tmp: Path, log: Path, infos: dict[str, dict]) -> VbdCase:
+    """Untimed runs of each of our runs and each peer, then `args.rounds` rounds of each in
+    turn, `args.frames` frames from the start each."""
+    frames = args.frames
+    trace_frames = sorted({1, frames // 2, frames})
+    scenes = {name: hanging_scene(sc, contact) for name, sc, contact in OUR_VBD_RUNS}
+    warmups, traces = {}, {}
+    for name, scene in scenes.items():
+        t0 = time.perf_counter()
+        traces[name] = traced_run(simulation(scene), frames, trace_frames)
+        warmups[name] = time.perf_counter() - t0
+    request = {"model": HANGING, "frames": frames, "trace": trace_frames}
+    workers, peer_warmups, peer_traces = start_workers(peers, skipped, vpy, args, request,
+                                                       tmp, log, infos)
+    warmups.update(peer_warmups)
+    traces.update(peer_traces)
+    times: dict[str, list[float]] = {name: [] for name in [*scenes, *workers]}
+    finals = {}
+    for _ in range(args.rounds):
+        for name, scene in scenes.items():
+            sim = simulation(scene)  # built outside the timing
+            t0 = time.perf_counter()
+            sim.advance(frames)
+            times[name].append(time.perf_counter() - t0)
+            finals[name] = sim.positions.copy()
+        run_peers(workers, times, skipped, frames * HANGING["steps_per_frame"])
+    finals.update(collect_finals(workers, times, skipped, tmp, "vbd"))
+    return VbdCase(frames, times, warmups, finals, trace_frames, traces)
+
+
+def report_vbd(case: VbdCase, peers: list[str], skipped: dict[str, str]) -> None:
+    """Frames per second of each run (median and best round), its warm-up, where the cloth
+    is (its lowest point above the ground, its distance to Newton's), then ours / Newton's."""
+    ground = 1.0 - HANGING["height"]
+    reference = case.finals.get(NEWTON_PEERS[0])
+    print(f"{'simulator':24s} {'frames/s':>9s} {'best':>9s} {'warm-up s':>9s} "
+          f"{'lowest m':>9s} {'|x - newton|':>12s}")
+    for name in [r[0] for r in OUR_VBD_RUNS] + peers:
+        if name not in case.finals:
+            print(f"{name:24s} skipped: {skipped.get(name, 'not run')}")
+            continue
+        t = case.times[name]
+        d = "-" if reference is None else f"{distance(case.finals[name], reference):.2e}"
+        print(f"{name:24s} {case.frames / statistics.median(t):9.3f} {case.frames / min(t):9.3f} "
+              f"{case.warmups[name]:9.2f} {case.finals[name][:, 1].min() - ground:9.3f} "
+              f"{d:>12s}")
+    ran = [p for p in peers if p in case.finals]
+    if not ran:
+        return
+    print("ours / Newton, frames per second: median (best round)")
+    print(f"{'':24s}" + "".join(f" {p:>24s}" for p in ran))
+    for name, _, _ in OUR_VBD_RUNS:
+        cells = []
+        for p in ran:
+            med = statistics.median(case.times[p]) / statistics.median(case.times[name])
+            cells.append(f"{med:.2f}x ({min(case.times[p]) / min(case.times[name]):.2f}x)")
+        print(f"{name:24s}" + "".join(f" {c:>24s}" for c in cells))
+    print(f"{'|x - newton| (m) after frame':34s}"
+          + " ".join(f"{f:>8d}" for f in case.trace_frames) + "  (untimed runs)")
+    for name in [r[0] for r in OUR_VBD_RUNS] + ran[1:]:
+        if reference is not None and name in case.traces:
+            dists = [distance(a, b) for a, b in zip(case.traces[name], case.traces[ran[0]])]
+            print(f"  {name:32s}" + " ".join(f"{d:8.2e}" for d in dists))
+    sys.stdout.flush()
+
+
+def main_vbd(args: Any, peers: list[str], skipped: dict[str, str], vpy: Path,
+             simulation: Any, log: Path) -> None:
+    """--vbd: the header lines, the case, the report."""
+    c = HANGING
+    print(f"VBD against Newton: its cloth_hanging rebuilt ({c['dim_x'] + 1} x {c['dim_y'] + 1} "
+          f"points, {c['cell']} m cells, left edge pinned), {args.frames} frames of "
+          f"1/{c['fps']} s from the start, {c['steps_per_frame']} steps x {c['iterations']} "
+          f"iterations a frame, {args.rounds} rounds alternately; ours: the FEM under vbd "
+          "(benchmarks/peers.py hanging_scene)")
+    infos: dict[str, dict] = {}
+    with tempfile.TemporaryDirectory(prefix="clothpipe-peers-") as tmp:
+        case = measure_vbd(peers, skipped, vpy, args, simulation, Path(tmp), log, infos)
+    for p in peers:
+        info = infos.get(p)
+        print(f"  {p}: skipped: {skipped.get(p, 'not run')}" if info is None else
+              f"  {p}: {info['version']}, Python {info['python']} (venv), {info['threads']}, "
+              f"float32, {info['provot']}")
+    report_vbd(case, peers, skipped)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="50,100,200", help="grids, comma-separated")
     ap.add_argument("--rounds", type=int, default=3, help="timed rounds (>= 3)")
     ap.add_argument("--threads", type=int, default=os.cpu_count() or 1,
                     help="numba threads for ours, cpu_max_num_threads for Taichi")
-    ap.add_argument("--peers", default="taichi,warp",
-                    help=f"comma-separated, of {', '.join(PEERS)}")
+    ap.add_argument("--peers", help="comma-separated, of "
+                    f"{', '.join(PEERS)} (default taichi,warp; with --vbd newton's two)")
+    ap.add_argument("--vbd", action="store_true",
+                    help="the VBD case: Newton's cloth_hanging against Newton's SolverVBD")
+    ap.add_argument("--frames", type=int, default=60, help="--vbd: frames a round")
     ap.add_argument("--precision", choices=["f64", "f32"], default="f64",
                     help="the peers' floating point (ours is float64)")
     ap.add_argument("--venv", type=Path, default=DEFAULT_VENV, help="the peers' venv")
@@ -807,10 +1110,12 @@ def main() -> None:
         serve(args.worker, args.threads, args.precision)
         return
     sizes = [int(s) for s in args.sizes.split(",")]
-    peers = [p.strip() for p in args.peers.split(",") if p.strip()]
-    unknown = set(peers) - set(PEERS)
-    if unknown or args.rounds < 3:
-        ap.error(f"unknown peers {sorted(unknown)}" if unknown else "--rounds must be >= 3")
+    default = ",".join(NEWTON_PEERS) if args.vbd else "taichi,warp"
+    peers = [p.strip() for p in (args.peers or default).split(",") if p.strip()]
+    unknown = set(peers) - set(NEWTON_PEERS if args.vbd else PINNED2_PEERS)
+    if unknown or args.rounds < 3 or args.frames < 1:
+        ap.error(f"unknown peers {sorted(unknown)}" if unknown else
+                 "--rounds must be >= 3" if args.rounds < 3 else "--frames must be >= 1")
 
     # numba reads its thread count at import: more than the default needs it set first
     os.environ.setdefault("NUMBA_NUM_THREADS", str(max(args.threads, os.cpu_count() or 1)))
@@ -824,6 +1129,11 @@ def main() -> None:
 
     ours = load_ours()
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    if args.vbd:
+        print(f"  ours: clothpipe {importlib.metadata.version('clothpipe')}, numba "
+              f"{numba.__version__}, numba threads {numba.get_num_threads()}, float64")
+        main_vbd(args, peers, skipped, vpy, ours[0], log)
+        return
     print(f"peers benchmark: {SCENE.relative_to(ROOT)}, {args.rounds} rounds, "
           f"{os.cpu_count()} cores; peers in {args.venv}; worker logs in {log}")
     print(f"  ours: clothpipe {importlib.metadata.version('clothpipe')}, numba "
