@@ -6,6 +6,7 @@ do its layers come, and what does the contact cost.
     python benchmarks/contact.py --contact course,robust           # both, one after the other
     python benchmarks/contact.py --scenes drape --seconds 1
     python benchmarks/contact.py --scenes rising,twist,pile,garment --seconds 0.3  # smoke test
+    python benchmarks/contact.py --scenes bowl,sweep,openbowl --contact course,robust  # meshes
 
 Per scene and checked frame: the edge-triangle crossing count of the checker in
 benchmarks/crossings.py (written apart from the solver: every cloth edge against every
@@ -50,8 +51,16 @@ every fifth frame of the others, and every frame of the rising sphere from 0.95 
   degrees about the vertical, dropped on a box 0.3 m wide and 0.4 m high on a floor;
   self-collision on; 2 s.
 - garment: scenes/tshirt.json as it is (a mesh T-shirt on a mesh torso, 60 fps x 48 steps)
-  with self-collision on, 3 s. Robust contact does not cover mesh colliders (it keeps the
-  course's handling there): the collider columns show what happens.
+  with self-collision on, 3 s.
+- bowl: scenes/bowl.json as it is (a 40 x 40 cloth dropped over a solid concave mesh bowl
+  of 4096 triangles on a floor), no self-collision (the colliders alone), 2 s.
+- sweep: a 30 x 30 cloth hanging from two corners, swept up through by a keyframed mesh
+  ball (the 5120 triangles of scenes/meshes/icosphere5k.obj at radius 0.15) rising 1 m in
+  0.2 s from t = 0.2 s and turning; no self-collision; 0.8 s, every frame checked while it
+  passes. It must carry the cloth.
+- openbowl: a 40 x 40 cloth dropped onto the one-sided open shell
+  scenes/meshes/open_bowl.obj (radius 0.4, 1984 triangles, `"solid": false`); no
+  self-collision; 2 s. Going round the rim is no crossing; through the shell is.
 The meshes of twist and pile are written at run time into a temporary folder, removed at
 exit. On 2 shared cores a robust run of each new scene at its default length takes a few
 minutes at most (simulate, 2026-11: pile 50 s for its first second, twist 169 s, garment
@@ -237,6 +246,48 @@ def garment_scene() -> dict:
     return raw
 
 
+def bowl_scene() -> dict:
+    """scenes/bowl.json as it is (a 40 x 40 cloth dropped over a solid concave mesh bowl
+    on a floor; its mesh path made absolute); no self-collision: the colliders only."""
+    raw = _course("bowl.json")
+    raw["mesh"]["path"] = str(ROOT / "scenes" / raw["mesh"]["path"])
+    return raw
+
+
+SWEEP_START, SWEEP_SECONDS, SWEEP_RISE = 0.2, 0.2, 1.0  # the swept mesh: s, s, m
+
+
+def sweep_scene() -> dict:
+    """A 30 x 30 cloth (1 m at y = 1) hanging from two corners, swept up through from
+    SWEEP_START by a keyframed mesh ball (scenes/meshes/icosphere5k.obj at radius 0.15)
+    rising SWEEP_RISE in SWEEP_SECONDS (5 m/s) and turning, then held."""
+    return {
+        "cloth": {"width": 1, "height": 1, "num_width_points": 30, "num_height_points": 30,
+                  "orientation": 0, "enable_structural": True, "enable_shearing": True,
+                  "enable_bending": True, "pinned": [[0, 0], [29, 0]], **COURSE_MATERIAL},
+        "mesh": {"path": str(ROOT / "scenes" / "meshes" / "icosphere5k.obj"),
+                 "translation": [0.5, 0.7, 0.5], "scale": 0.15, "friction": 0.5,
+                 "thickness": 0.005,
+                 "keyframes": [{"time": SWEEP_START},
+                               {"time": SWEEP_START + SWEEP_SECONDS,
+                                "translation": [0, SWEEP_RISE, 0], "rotation": [0, 90, 0]}]},
+    }
+
+
+def open_bowl_scene() -> dict:
+    """A 40 x 40 cloth (1.2 m at y = 1) dropped onto the one-sided open hemispherical shell
+    scenes/meshes/open_bowl.obj (radius 0.4, rim at y = 0.5): into it, round its rim."""
+    return {
+        "cloth": {"width": 1.2, "height": 1.2, "num_width_points": 40, "num_height_points": 40,
+                  "orientation": 0, "enable_structural": True, "enable_shearing": True,
+                  "enable_bending": True, **COURSE_MATERIAL},
+        "mesh": {"path": str(ROOT / "scenes" / "meshes" / "open_bowl.obj"),
+                 "translation": [0.6, 0.5, 0.6], "solid": False, "friction": 0.4,
+                 "thickness": 0.008},
+        "simulation": {"frames_per_sec": 60, "steps_per_frame": 15},
+    }
+
+
 #: name: (scene dict builder, default seconds, check every n-th frame, and every frame
 #: within (from, to) seconds or None)
 SCENES = {
@@ -247,6 +298,9 @@ SCENES = {
     "twist": (twist_scene, 1.0, 5, None),  # the full turn (--seconds 3) costs far more
     "pile": (pile_scene, 2.0, 5, None),
     "garment": (garment_scene, 3.0, 5, None),
+    "bowl": (bowl_scene, 2.0, 5, None),
+    "sweep": (sweep_scene, 0.8, 5, (SWEEP_START, SWEEP_START + SWEEP_SECONDS + 0.05)),
+    "openbowl": (open_bowl_scene, 2.0, 5, None),
 }
 
 
@@ -306,7 +360,7 @@ def run_scene(name: str, mode: str, seconds: float | None, every: int | None,
           f"{seconds:g} s = {frames} frames, checked every {every}"
           + (f" and every frame {dense.start}-{dense.stop - 1}" if len(dense) else ""))
     kinds = ", ".join(type(o).__name__ for o in scene.colliders)
-    print(f"   colliders: {kinds} ({'robust: sphere and box' if ran == 'robust' else 'course'}"
+    print(f"   colliders: {kinds} ({'robust' if ran == 'robust' else 'course'}"
           f" handling; inside/edges: collider_crossings, summed over the colliders)"
           if kinds else "   colliders: none")
     if extra:

@@ -16,6 +16,7 @@ import pytest
 
 from conftest import scene_path
 from pipeline import Simulation, load_scene
+from pipeline.physics.collider_contact import FACE_PUSHES, MOVED_OUT, PIN_POINT
 from pipeline.physics.contact import contact_summary, pack_contact, robust_contact
 
 
@@ -283,6 +284,7 @@ def _collider_checker():
 
 
 CC = _collider_checker()
+NO_EDGES = np.zeros((0, 2), np.int64)
 
 
 def _cloth(n: int, pinned=None) -> dict:
@@ -321,9 +323,10 @@ def _to_rest(obj, points: np.ndarray, t: float) -> np.ndarray:
     return (points - pivot - shift) @ r + pivot
 
 
-def violations(contact: str, kind: str, steps: int = 90):
-    """(inside, edges through, paths through) summed over every step, and the Simulation."""
-    sim = Simulation(projectile_scene(contact, kind))
+def violations(scene: dict, steps: int = 90):
+    """(inside, edges through, paths through) summed over every step (one step a frame) of
+    a scene with one collider, and the Simulation."""
+    sim = Simulation(scene)
     obj = sim.scene.colliders[0]
     edges = CC.unique_edges(sim.model.triangles)
     n = sim.model.x0.shape[1]
@@ -347,9 +350,9 @@ def violations(contact: str, kind: str, steps: int = 90):
 
 @pytest.mark.parametrize("kind", ["sphere", "box"])
 def test_a_projectile_never_passes_through_the_cloth_under_robust_contact(kind):
-    course, _ = violations("course", kind)
+    course, _ = violations(projectile_scene("course", kind))
     assert sum(course) > 0, course  # the course's projection lets it through
-    robust, sim = violations("robust", kind)
+    robust, sim = violations(projectile_scene("robust", kind))
     assert robust == (0, 0, 0)
     # it carried the cloth: points hit are now well above where the cloth hangs
     assert sim.positions[:, 1].max() > 1.1
@@ -423,3 +426,117 @@ def test_a_sphere_rising_at_10_m_s_carries_the_cloth_lying_on_it(contact):
     assert np.median(sim.positions[:, 1]) > 2.0  # carried up with the sphere (top at 2.4 m)
     if contact == "robust":
         assert worst == 0
+
+
+# --- mesh colliders (pipeline.physics.mesh_contact) ----------------------------------------
+
+ICOSPHERE = str(Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "icosphere5k.obj")
+
+
+def write_cube(tmp_path: Path, side: float = 0.2) -> str:
+    import trimesh
+
+    path = tmp_path / "cube.obj"
+    trimesh.creation.box(extents=(side, side, side)).export(path)
+    return str(path)
+
+
+def write_sheet(tmp_path: Path, side: float = 0.5) -> str:
+    """A one-sided square of two triangles in the plane y = 0, centred on the origin."""
+    h = side / 2
+    path = tmp_path / "sheet.obj"
+    path.write_text(f"v {-h} 0 {-h}\nv {h} 0 {-h}\nv {h} 0 {h}\nv {-h} 0 {h}\nf 1 3 2\nf 1 4 3\n")
+    return str(path)
+
+
+@pytest.mark.parametrize("shape", ["box corner", "icosphere"])
+def test_a_coarse_cloth_dropped_on_a_small_solid_mesh_keeps_every_edge_out(shape, tmp_path):
+    """A mesh cube standing on a corner, or an icosphere of radius 9 cm, under cells of 14 cm:
+    the course's level set keeps the points out but edges cut through; robust contact keeps
+    both out at every frame (the independent checker)."""
+    if shape == "box corner":
+        mesh = {"path": write_cube(tmp_path), "translation": [0.5, 0.5, 0.5],
+                "rotation": [45, 0, 35.264]}
+    else:
+        mesh = {"path": ICOSPHERE, "translation": [0.5, 0.6, 0.5], "scale": 0.09}
+    collider = {"mesh": {**mesh, "friction": 0.5, "thickness": 0.005}}
+    counts = {}
+    for contact in ("course", "robust"):
+        sim = Simulation(drape_scene(contact, collider))
+        edges = CC.unique_edges(sim.model.triangles)
+        found = []
+        for _ in range(45):
+            sim.advance(1)
+            v = CC.collider_violations(sim.positions, edges, sim.scene.colliders, sim.time)
+            found.append((v["inside"], v["edges"]))
+        counts[contact] = found
+    assert max(e for _, e in counts["course"]) > 0
+    assert all(f == (0, 0) for f in counts["robust"]), counts["robust"]
+    assert sim.system.contact.stats[FACE_PUSHES] > 0  # it pushed edges out
+
+
+def sweep_scene(contact: str, path: str) -> dict:
+    """A cloth hanging from two corners, swept up through by a keyframed mesh cube of side
+    0.2 m rising 1 m and turning in 0.1 s (10 m/s): one step a frame."""
+    keys = [{"time": 0.05}, {"time": 0.15, "translation": [0, 1.0, 0], "rotation": [0, 90, 30]}]
+    return {"cloth": _cloth(16, [[0, 0], [15, 0]]),
+            "mesh": {"path": path, "translation": [0.5, 0.6, 0.5], "rotation": [20, 0, 10],
+                     "friction": 0.3, "thickness": 0.005, "keyframes": keys},
+            "simulation": {"frames_per_sec": 200, "steps_per_frame": 1, "contact": contact}}
+
+
+def test_a_keyframed_mesh_swept_through_a_hanging_cloth_carries_it(tmp_path):
+    cube = write_cube(tmp_path)
+    course, _ = violations(sweep_scene("course", cube), 40)
+    assert min(course) > 0, course  # points inside, edges through and paths through
+    robust, sim = violations(sweep_scene("robust", cube), 40)
+    assert robust == (0, 0, 0)
+    assert sim.positions[:, 1].max() > 1.3  # carried up on the cube
+    assert "pinned point" not in contact_summary(sim.system.contact, 1)
+
+
+def test_a_cloth_sliding_off_a_one_sided_sheet_never_passes_through_it(tmp_path):
+    """A 0.4 m cloth falls onto a one-sided square sheet turned 30 degrees, without friction,
+    and slides off its lower rim: under the course's handling its edges pass through the
+    sheet; under robust contact no edge and no point's path ever does, and going round the
+    rim is not counted as a crossing."""
+    def scene(contact: str) -> dict:
+        cloth = {**_cloth(10), "width": 0.4, "height": 0.4}
+        return {"cloth": cloth,
+                "mesh": {"path": write_sheet(tmp_path), "translation": [0.2, 0.8, 0.2],
+                         "rotation": [0, 0, 30], "solid": False, "friction": 0.0,
+                         "thickness": 0.005},
+                "simulation": {"frames_per_sec": 300, "steps_per_frame": 1, "contact": contact}}
+
+    course, _ = violations(scene("course"), 200)
+    assert course[1] > 0, course
+    robust, sim = violations(scene("robust"), 200)
+    assert robust == (0, 0, 0)
+    lower_rim = 0.2 - 0.25 * np.cos(np.radians(30))
+    assert sim.positions[:, 0].max() < lower_rim and sim.positions[:, 1].max() < 0.5  # off it
+
+
+def test_points_inside_a_solid_mesh_go_out_to_its_nearest_surface(tmp_path):
+    """mesh_contact's pass on its own: free points inside a mesh cube (still, from inside)
+    end SURFACE_GAP outside its nearest face; a pinned one is named."""
+    from pipeline.physics.collider_contact import SURFACE_GAP
+    from pipeline.physics.colliders import pack_colliders
+    from pipeline.physics.mesh_contact import mesh_colliders, pack_meshes
+    from pipeline.scene import MeshCollider
+
+    obj = MeshCollider(path=Path(write_cube(tmp_path)), friction=0.0)
+    table = pack_colliders([obj], 7)
+    x = np.ascontiguousarray(np.array([[0.05, 0.0, 0.0], [0.0, -0.08, 0.01], [0.3, 0.0, 0.0],
+                                       [0.0, 0.09, 0.0], [2, 0, 0], [3, 0, 0], [2, 0, 1]]).T)
+    x0 = x.copy()  # points 0-3 on no triangle (no edge pushes)
+    c = pack_contact(0.01, 0.0, np.array([[4, 5, 6]]), x, np.ones(7),
+                     np.array([0, 0, 0, 1, 0, 0, 0], np.uint8), self_on=False,
+                     meshes=pack_meshes([obj], 7))
+    mesh_colliders(x, x0, c.meshes, c.edges, c.inv_mass, c.stats, table.params, table.data,
+                   table.key_count, table.pivot, table.pose, 0, c.solid_stage, c.sheet_stage)
+    assert np.allclose(x[:, 0], [0.1 + SURFACE_GAP, 0, 0]) and np.allclose(
+        x[:, 1], [0, -0.1 - SURFACE_GAP, 0.01])
+    assert np.array_equal(x[:, 2:], x0[:, 2:])  # outside, and pinned
+    assert c.stats[MOVED_OUT] == 2 and c.stats[PIN_POINT] == 3
+    v = CC.collider_violations(x.T, NO_EDGES, [obj], 0.0, np.array([3]))
+    assert v["inside"] == 0

@@ -168,7 +168,7 @@ def make_plan(sim) -> Plan:
                        type(obj).__name__ in ("Sphere", "Box") else
                        "; robust: each point kept on the side it came from" if
                        type(obj).__name__ == "Plane" else
-                       "; robust contact does not cover mesh colliders: the course's level set")
+                       "; robust: no point path and no edge through its triangles")
         colliders.append({"name": name, "status": status})
     if sim.system.contact is not None and sim.system.contact.self_on:
         self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "

@@ -20,8 +20,8 @@ taken as the cloth's relative motion, as the course pass takes it).
 A plane needs only the first, paths (the course's plane pass keeps a point on its side,
 but the self-contact after it can push it through): a segment between two points on one
 side stays there.
-Mesh colliders keep the course's handling (their distance grid's level set at
-`thickness`), which is not exact.
+Mesh colliders (the course's level set of their distance grid, not exact) get the same two
+stages on their triangles: pipeline.physics.mesh_contact.
 A pinned point inside a solid, or an edge of two pinned points through one, cannot be moved:
 it is counted (stats), with the first step it happened at and one such point.
 """
@@ -32,7 +32,7 @@ import numpy as np
 from clothjit import njit
 
 from .ccd import point_triangle_distance
-from .colliders import _to_rest, _to_world, box, plane, sphere
+from .colliders import _to_rest, _to_world, box, mesh, plane, sphere
 
 SURFACE_GAP = 1e-4  # metres kept outside a surface (the course's box and plane keep the same)
 FACE_ROUNDS = 16
@@ -374,8 +374,8 @@ def _pinned_inside(x, inv_mass, kind, params, frame, k):
 
 @njit(cache=True, nogil=True, error_model="numpy", pointer=True)
 def robust_colliders(x, x0, c, table):
-    """Stages 1 and 2 for every active sphere and box collider, stage 1 for every plane, in
-    scene order, on the step
+    """Stages 1 and 2 for every active sphere and box collider, stage 1 for every plane, the
+    mesh colliders' own (pipeline.physics.mesh_contact), in scene order, on the step
     from x0 to x (3, N), in place; returns the number of points and triangles moved. (The
     passes take plain arrays, not the two tables: numba's compile time grows with the
     types its functions take.)"""
@@ -384,7 +384,12 @@ def robust_colliders(x, x0, c, table):
     moved = 0
     for k in range(table.kinds.shape[0]):
         kind = table.kinds[k]
-        if table.active[k] == 0 or kind not in (sphere.KIND, box.KIND, plane.KIND):
+        if table.active[k] == 0:
+            continue
+        if kind == mesh.KIND:  # pipeline.physics.mesh_contact, through a pointer
+            moved += c.mesh_pass(x, x0, c.meshes, c.edges, inv_mass, stats, table.params,
+                                 table.data, table.key_count, table.pivot, table.pose, k,
+                                 c.solid_stage, c.sheet_stage)
             continue
         moved += _paths(x, x0, inv_mass, stats, kind, table.params, frame, k)
         if kind == plane.KIND:  # no solid: no edge through it once no point is

@@ -37,6 +37,7 @@ from clothjit import KernelPointer, njit
 
 from .collider_contact import FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP
 from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
+from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 
 CCD_ROUNDS = 4
 # the candidate list: every pair within (1 + LIST_MARGIN) h at its making, good while no
@@ -82,6 +83,13 @@ class RobustContact(NamedTuple):
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
+    meshes: MeshContact | None = None  # the mesh colliders' triangles (none: no rows)
+    # mesh_contact.mesh_colliders and its stages for solid and one-sided meshes, through
+    # pointers absent where the scene has no such mesh (every scene's RobustContact has one
+    # type, so robust contact's kernels compile once for all): mesh_contact.mesh_pointers
+    mesh_pass: KernelPointer | None = None
+    solid_stage: KernelPointer | None = None
+    sheet_stage: KernelPointer | None = None
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
     # of robust contact compiled 12 s with it linked there); None in the params it is handed
     visit: KernelPointer | None = None
@@ -89,9 +97,12 @@ class RobustContact(NamedTuple):
 
 def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                  rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
-                 self_on: bool = True) -> RobustContact:
+                 self_on: bool = True, meshes: MeshContact | None = None) -> RobustContact:
     """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N); without
-    `self_on`, for the colliders' robust pass alone (no self-contact scratch)."""
+    `self_on`, for the colliders' robust pass alone (no self-contact scratch); `meshes`:
+    the scene's mesh colliders (mesh_contact.pack_meshes), none by default."""
+    if meshes is None:
+        meshes = pack_meshes((), rest.shape[1])
     tris = np.ascontiguousarray(triangles, dtype=np.int64)
     pairs = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
     edges = np.unique(pairs, axis=0)
@@ -115,6 +126,9 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros(LISTED_PER_POINT * m), np.array([-1, 0], np.int64),
                       np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
     field = types.float64[:, ::1]
+    passes = mesh_pointers(meshes, c.edges, inv, stats)
+    c = c._replace(meshes=meshes, mesh_pass=passes[0], solid_stage=passes[1],
+                   sheet_stage=passes[2])
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
 
@@ -144,7 +158,8 @@ def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
                      f"{s[2]:.0f} CCD stops, {s[3]:.0f} points held by the fail-safe; smallest "
                      f"gap found: {gap}")
     parts.append(f"colliders: {s[PATH_STOPS]:.0f} paths stopped at a surface, "
-                 f"{s[MOVED_OUT]:.0f} points moved out, {s[FACE_PUSHES]:.0f} triangles pushed out")
+                 f"{s[MOVED_OUT]:.0f} points moved out, {s[FACE_PUSHES]:.0f} triangles or "
+                 "edges pushed out")
     line = "robust contact: " + "; ".join(parts)
     if s[4] > 0:
         line += f"; {s[4]:.0f} pairs met with no point free to move (pins forcing them)"
@@ -153,7 +168,8 @@ def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
         line += (f"; pinned point {int(s[PIN_POINT])} is inside a collider from frame {frame} "
                  f"(pins forcing the cloth into it: no valid state)")
     elif s[NOT_KEPT] > 0:
-        line += f"; {s[NOT_KEPT]:.0f} times a triangle stayed in a collider after its rounds"
+        line += (f"; {s[NOT_KEPT]:.0f} times a triangle or an edge stayed in a collider after "
+                 "its rounds")
     return line
 
 

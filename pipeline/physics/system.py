@@ -19,6 +19,7 @@ from pipeline.scene import Scene
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .collider_contact import robust_colliders
 from .contact import RobustContact, pack_contact, robust_contact
+from .mesh_contact import pack_meshes
 from .constraints import (CandidateMask, candidate_mask, existence_bits, limit_stretch,
                           stretch_limits)
 from .fem import FemParams, estimate_omega_max, no_fem
@@ -243,7 +244,7 @@ def collision_box(model: ClothModel) -> tuple[float, float]:
 
 def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
     """The packed robust contact when the scene asks for it (its self-contact part when
-    self-collision is on)."""
+    self-collision is on; its mesh colliders' triangles)."""
     if scene.simulation.contact != "robust":
         return None
     if model.mesh is None:  # the rest shape, whatever positions the run starts from
@@ -253,7 +254,8 @@ def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
 
         rest = np.ascontiguousarray(np.asarray(load_cloth_mesh(scene.cloth.mesh).points).T)
     return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles, rest,
-                        model.point_mass, model.pinned, self_on=bool(scene.self_collision))
+                        model.point_mass, model.pinned, self_on=bool(scene.self_collision),
+                        meshes=pack_meshes(scene.colliders, model.n))
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:
