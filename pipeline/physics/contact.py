@@ -74,6 +74,7 @@ class RobustContact(NamedTuple):
     entry_box: np.ndarray  # (9, cap) scratch: their boxes in the same order (read in turn),
     #                        then the cell of each box's lower corner
     roots: np.ndarray  # (4,) scratch of the cubic's roots
+    ids: np.ndarray  # (5,) int64 scratch: the pair _visit hands to _pair
     listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
     count: np.ndarray  # (2,) int64 pairs listed; -1: no valid list; OVERFLOWED: count[1]
@@ -121,7 +122,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
                       np.zeros(size + 1, np.int64), np.zeros((2, size), np.int64),
                       np.zeros(4 * size, np.int64),
-                      np.zeros((9, 4 * size)), np.zeros(4),
+                      np.zeros((9, 4 * size)), np.zeros(4), np.zeros(5, np.int64),
                       np.zeros((LISTED_PER_POINT * m, 5), np.int64),
                       np.zeros(LISTED_PER_POINT * m), np.array([-1, 0], np.int64),
                       np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
@@ -283,12 +284,16 @@ def _rest_close(c, ids):
     return d < c.thickness
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
 def _visit(x0, x1, c, mode, cell):
     """Visit every candidate pair once: mode 0 CCD responses, else proximity at x1; 1 CCD
     responses only; 2 CCD detection for the fail-safe (freezing). Returns the pairs acted
     on. The triangles' and edges' boxes grow by the margin (h for proximity), the points'
-    not: a box pair overlaps where the primitives may be within the margin."""
+    not: a box pair overlaps where the primitives may be within the margin. Without numba's
+    reference counts (`_nrt=False`, as _listed: nothing here allocates, the pair is
+    scratch): at every pair numba counted the references to the RobustContact's arrays
+    that the inlined _pair takes, which tripled the cost of robust contact."""
     if mode >= 4:
         return _listed(x0, x1, c, mode - 4, cell)
     tris, edges = c.triangles, c.edges
@@ -304,7 +309,7 @@ def _visit(x0, x1, c, mode, cell):
                          c.entry_box):
         cell *= 2.0
     mask = c.bucket_start.shape[0] - 2
-    ids = np.zeros(5, np.int64)
+    ids = c.ids
     eb = c.entry_box
     for p in range(n):
         plo = (min(x0[0, p], x1[0, p]), min(x0[1, p], x1[1, p]), min(x0[2, p], x1[2, p]))
@@ -374,13 +379,12 @@ def _collect(x, c, ids):
     return 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _listed(x0, x1, c, mode, drift):
     """_visit's modes 0-2 over the candidate list: a pair is skipped where its distance at
     the list's making, less what its two primitives' points may have moved since (c.moved),
     leaves it further than h (mode 0) or apart (CCD) all through the step."""
     acted = 0
-    ids = np.zeros(5, np.int64)
     h = c.thickness
     reach = h if mode == 0 else h * TOLERANCE
     moved, listed, gap = c.moved, c.listed, c.listed_gap
@@ -393,9 +397,7 @@ def _listed(x0, x1, c, mode, drift):
         near = (m0 + max(m1, m2, m3) if listed[k, 4] == 0 else max(m0, m1) + max(m2, m3))
         if gap[k] > reach + near:
             continue
-        for j in range(5):
-            ids[j] = listed[k, j]
-        acted += _pair(x0, x1, c, mode, ids)
+        acted += _pair(x0, x1, c, mode, listed[k])
     return acted
 
 
