@@ -253,10 +253,12 @@ def _box_face(prm, a, b, c):
 # --- the passes ----------------------------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
     """Stage 1 for collider k (a sphere, a box or a plane: kind, parameter rows params) on
-    every free point; returns points moved."""
+    every free point; returns points moved. Without numba's reference counts, as _faces
+    and _pinned_inside (`_nrt=False`: nothing allocates): numba counted the references to
+    the pose arrays of the inlined _rest at every point (a third of the pass's time)."""
     prm = params[k]
     friction = prm[4] if kind == sphere.KIND else prm[15] if kind == box.KIND else prm[6]
     keep = 1.0 - friction
@@ -296,7 +298,7 @@ def _paths(x, x0, inv_mass, stats, kind, params, frame, k):
     return moved
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _faces(x, triangles, inv_mass, push, pushes, stats, kind, prm, frame, k, apply):
     """One round of stage 2 for collider k: (triangles in it that can move, triangles in it
     that pinned corners hold there), moving the first out when `apply`; (0, 0): every
@@ -355,7 +357,7 @@ def _rotate(pose, k, nx, ny, nz):
             pose[k, 1, 6] * nx + pose[k, 1, 7] * ny + pose[k, 1, 8] * nz)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
 def _pinned_inside(x, inv_mass, kind, params, frame, k):
     """The first pinned point inside collider k, or -1."""
     prm = params[k]
