@@ -259,3 +259,27 @@ def test_the_colouring_is_proper(case, tmp_path):
                 for j in range(i):
                     assert np.all(shades[:, i] != shades[:, j])
     assert len(el.springs) or len(el.hinges)  # bending elements were coloured too
+
+
+@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
+def test_parallel_colours_give_the_same_bits_on_any_thread_count():
+    """From vbd.PARALLEL_POINTS points on, each colour's points are updated on the threads
+    (descend_in_chunks): no two share an element, so 1 and 2 threads give the same bits."""
+    import numba
+
+    from pipeline.physics.integrators import vbd
+
+    n = 32
+    assert n * n >= vbd.PARALLEL_POINTS
+    before = numba.get_num_threads()
+    results = []
+    try:
+        for threads in (1, 2):
+            numba.set_num_threads(threads)
+            run = Run(grid_scene("fem", spf=1, stretch=3000.0, n=n), "vbd")
+            assert run.state.descend.dispatcher is vbd.descend_in_chunks
+            assert run.advance(4)
+            results.append(run.x.copy())
+    finally:
+        numba.set_num_threads(before)
+    assert np.array_equal(results[0], results[1])

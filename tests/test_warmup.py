@@ -101,9 +101,12 @@ SELF = [[], ["pipeline.physics.self_collision:self_collide"],
          "pipeline.physics.collider_contact:robust_colliders"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
             "pipeline.physics.integrators.implicit_euler:_update"]
-# VBD's: one descent over flat element lists for every model and cloth
-VBD = ["pipeline.physics.integrators.vbd:_predict", "pipeline.physics.integrators.vbd:descend",
+# VBD's: one descent over flat element lists for every model and cloth, its colours' loop
+# serial below vbd.PARALLEL_POINTS points and parallel from there (pinned2's 2601)
+VBD = ["pipeline.physics.integrators.vbd:_predict", "pipeline.physics.integrators.vbd:_sweep",
        "pipeline.physics.integrators.vbd:_velocities"]
+VBD_SERIAL = VBD + ["pipeline.physics.integrators.vbd:descend"]
+VBD_PARALLEL = VBD + ["pipeline.physics.integrators.vbd:descend_in_chunks"]
 # the kernels each integrator's State points to, with the classic model and with the FEM
 STATE_KERNELS = {
     "implicit-euler": (IMPLICIT + ["pipeline.physics.forces:spring_prepare",
@@ -117,10 +120,10 @@ STATE_KERNELS = {
     "symplectic-euler": (["pipeline.physics.integrators.euler:euler_update"],) * 2,
     "rk4": (["pipeline.physics.integrators.rk4:_stage", "pipeline.physics.integrators.rk4:_finish"],) * 2,
     "xpbd": (["pipeline.physics.integrators.xpbd:solve_springs"], ["pipeline.physics.integrators.xpbd:solve_fem"]),
-    "vbd": (VBD, VBD)}
+    "vbd": (VBD_PARALLEL, VBD_PARALLEL)}
 # (and none: the integrator's kernels cached)
 INTEGRATORS = [([], [])] + [kernels for name, kernels in STATE_KERNELS.items()
-                            if name != "symplectic-euler"]
+                            if name != "symplectic-euler"] + [(VBD_SERIAL, VBD_SERIAL)]
 # called by the stepping kernel directly, not through a pointer
 LINKED = {"pipeline.physics.system:motion_summary", "pipeline.physics.system:energy_guard"}
 # a mesh cloth's (cloth.mesh): its forces (classic with Provot's limit, or the FEM; the
@@ -138,7 +141,7 @@ MESH_INTEGRATORS = [([], [])] + [STATE_KERNELS[name] for name in ("verlet", "eul
                  "pipeline.physics.mesh_forces:mesh_fem_diagonal"]),
     (["pipeline.physics.mesh_xpbd:solve_mesh_springs"],
      ["pipeline.physics.mesh_xpbd:solve_mesh_fem"]),
-    (VBD, VBD)]
+    (VBD_SERIAL, VBD_SERIAL)]
 
 
 def _scenes(tables=TABLES, loops=LOOPS[:1]) -> list[list[str]]:

@@ -157,7 +157,9 @@ COMPILE_SECONDS = {
     # VBD's (issue 44), one of each for every model and cloth: one cold process, CPU seconds
     # (2026-11-27 at about 19:45, a loaded machine), not scaled
     "pipeline.physics.integrators.vbd:_predict": 0.5,
-    "pipeline.physics.integrators.vbd:descend": 2.4,
+    "pipeline.physics.integrators.vbd:_sweep": 2.3,  # (2026-11-28: 2.05-2.42 s, two models)
+    "pipeline.physics.integrators.vbd:descend": 0.2,
+    "pipeline.physics.integrators.vbd:descend_in_chunks": 0.7,
     "pipeline.physics.integrators.vbd:_velocities": 0.15,
     "pipeline.physics.collider_contact:robust_colliders": 3.0,
 }

@@ -15,7 +15,8 @@ then v = (x - x_t) / h.
 
 The descent: `iterations` sweeps (simulation.iterations, System.iterations); a sweep visits
 the points colour by colour (vbd_energy's greedy colouring: no two points of one colour share
-an element, so each update reads only other colours' points), and moves each free point by
+an element, so each update reads only other colours' points, and a colour's points can be
+updated on the threads in any order: descend_in_chunks), and moves each free point by
 the Newton step of its own 3x3 block, -H_p^-1 grad_p G, H_p = (1 + h gamma) m_p / h^2 I + the
 positive semi-definite blocks of its elements (vbd_energy's docstring: the gradient is exact,
 the blocks projected). An update is skipped where |det H_p| is tiny (the paper's rule; with
@@ -54,9 +55,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from clothjit import KernelPointer, njit
+from numba.core import types
 
-from ..forces import external_force
+from clothjit import KernelPointer, njit, prange
+
+from ..forces import CHUNKS, external_force
 from ..pin_motion import move_pins
 from ..system import (
     System,
@@ -73,6 +76,9 @@ CONDITIONALLY_STABLE = False
 LINE_SEARCH_HALVINGS = 8  # then the point keeps its position for this sweep
 SINGULAR = 1e-12  # |det H| below SINGULAR (trace / 3)^3: skip the update (never at m > 0)
 ROUND_OFF = 1e-13  # a step whose predicted decrease is below this times |G_p|: no search
+# From this many points on, each colour's points are updated in parallel (descend_in_chunks):
+# an update costs about half a microsecond, so a colour's share pays for its barrier
+PARALLEL_POINTS = 1000
 
 
 class State(VelocityState):
@@ -94,8 +100,12 @@ class State(VelocityState):
         self.predict = KernelPointer(_predict, (
             self.x, self.v, self.v_previous, self.last, self.force, self.y, self.inertia,
             system.pinned, system.mass, system.gravity, 0.0, 0.0, True))
-        self.descend = KernelPointer(descend, (self.x, self.y, self.inertia, system.pinned,
-                                               self.elements, 0, True))
+        index = types.int64
+        self.sweep = KernelPointer(_sweep, (self.x, self.y, self.inertia, system.pinned,
+                                            self.elements, index, index, True))
+        loop = descend_in_chunks if n >= PARALLEL_POINTS else descend
+        self.descend = KernelPointer(loop, (self.x, self.y, self.inertia, system.pinned,
+                                            self.elements, 0, True, self.sweep))
         self.finish = KernelPointer(_velocities, (self.x, self.last, self.v, self.predicted,
                                                   system.pinned, 0.0))
 
@@ -103,7 +113,7 @@ class State(VelocityState):
         """The stepping kernel's arguments."""
         return (system, self.x, self.v, self.v_previous, self.last, self.predicted, self.force,
                 self.y, self.inertia, self.pin_start, self.elements, self.predict,
-                self.descend, self.finish, steps, first_step, self.adaptive,
+                self.descend, self.sweep, self.finish, steps, first_step, self.adaptive,
                 self.line_search)
 
     def advance(self, system: System, steps: int, first_step: int) -> tuple[int, float, float]:
@@ -204,16 +214,38 @@ def _update_point(x, y, inertia, el, p, line_search):
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
       pointer=True)
-def descend(x, y, inertia, pinned, el, iterations, line_search):
+def _sweep(x, y, inertia, pinned, el, lo, hi, line_search):
+    """Newton steps of the free points order[lo:hi] of one colour, in that order (they share
+    no element: any order gives the same bits)."""
+    order = el.order
+    for i in range(lo, hi):
+        p = order[i]
+        if pinned[p] == 0:
+            _update_point(x, y, inertia, el, p, line_search)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
+def descend(x, y, inertia, pinned, el, iterations, line_search, sweep):
     """`iterations` sweeps of block coordinate descent on G over the free points, colour by
-    colour (vbd_energy.VbdElements' colouring)."""
-    order, colours = el.order, el.colour_start
+    colour (vbd_energy.VbdElements' colouring); `sweep` the _sweep pointer."""
+    colours = el.colour_start
     for _ in range(iterations):
         for c in range(colours.shape[0] - 1):
-            for i in range(colours[c], colours[c + 1]):
-                p = order[i]
-                if pinned[p] == 0:
-                    _update_point(x, y, inertia, el, p, line_search)
+            sweep(x, y, inertia, pinned, el, colours[c], colours[c + 1], line_search)
+
+
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
+def descend_in_chunks(x, y, inertia, pinned, el, iterations, line_search, sweep):
+    """descend with each colour's points in CHUNKS parts on the threads: one barrier per
+    colour, after about PARALLEL_POINTS / colours updates of half a microsecond each."""
+    colours = el.colour_start
+    for _ in range(iterations):
+        for c in range(colours.shape[0] - 1):
+            lo, hi = colours[c], colours[c + 1]
+            for k in prange(CHUNKS):
+                sweep(x, y, inertia, pinned, el, lo + (k * (hi - lo)) // CHUNKS,
+                      lo + ((k + 1) * (hi - lo)) // CHUNKS, line_search)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -242,7 +274,7 @@ def _restore_pins(last, start, motion):
 
 @njit(cache=True, nogil=True)
 def advance(s, x, v, v_previous, last, predicted, force, y, inertia, pin_start, elements,
-            predict, descend_, finish, steps, first_step, adaptive, line_search):
+            predict, descend_, sweep, finish, steps, first_step, adaptive, line_search):
     """Run `steps` steps; returns (steps done, kinetic energy, bound) like verlet.advance."""
     gamma = drag_rate(s)
     kinetic = bound = 0.0
@@ -252,7 +284,7 @@ def advance(s, x, v, v_previous, last, predicted, force, y, inertia, pin_start, 
         predict(x, v, v_previous, last, force, y, inertia, s.pinned, s.mass, s.gravity, gamma,
                 s.dt, adaptive)
         move_pins(x, pin_start, s.pin_motion, t + s.dt)  # the hand where the step ends
-        descend_(x, y, inertia, s.pinned, elements, s.iterations, line_search)
+        descend_(x, y, inertia, s.pinned, elements, s.iterations, line_search, sweep)
         finish(x, last, v, predicted, s.pinned, s.dt)
         position_passes(x, last, s, t)
         _restore_pins(last, pin_start, s.pin_motion)
