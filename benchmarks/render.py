@@ -20,6 +20,8 @@ what a loaded machine gives: the load average is printed).
 --looks     per scene (with a floor plane under it to receive shadows) and size: the
             shader plain, with shadows, with ambient occlusion and with both, measured
             in alternating rounds; the best time of each and its ratio to plain.
+--cpu       frame times in this thread's CPU time: with NUMBA_NUM_THREADS=1 all the work,
+            without the waits other processes on the machine cause (2x swings).
 Threads: NUMBA_NUM_THREADS (default: all cores); compare NUMBA_NUM_THREADS=1 and 2.
 """
 from __future__ import annotations
@@ -43,6 +45,7 @@ import numba  # noqa: E402
 import shading  # noqa: E402
 
 STAGES = ("mesh", "prepare", "gather", "geometry", "raster", "shade")
+clock = time.perf_counter  # --cpu: time.thread_time
 
 
 def grid(nw, nh, width=1.0, height=1.0):
@@ -65,20 +68,20 @@ def bench(shader, pos, nw, nh, extra, w, h, reps, params=None):
     """(first call s, best s, median s, best render-only s, best per stage s)."""
     cam = shading.Camera.default_for_cloth(pos, 1.0, 1.0, width=w, height=h)
     r = shading.Renderer(w, h)
-    t0 = time.perf_counter()
+    t0 = clock()
     r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader, params)
-    first = time.perf_counter() - t0
+    first = clock() - t0
     for _ in range(3):
         r.render([shading.cloth_mesh(pos, nw, nh)] + extra, cam, None, shader, params)
     times, rtimes = [], []
     stages = dict.fromkeys(STAGES, float("inf"))
     st = {}
     for _ in range(reps):
-        t0 = time.perf_counter()
+        t0 = clock()
         meshes = [shading.cloth_mesh(pos, nw, nh)] + extra
-        t1 = time.perf_counter()
+        t1 = clock()
         r.render(meshes, cam, None, shader, params, timings=st)
-        t2 = time.perf_counter()
+        t2 = clock()
         times.append(t2 - t0)
         rtimes.append(t2 - t1)
         st["mesh"] = t1 - t0
@@ -176,7 +179,11 @@ def main(argv=None):
     ap.add_argument("--looks", action="store_true",
                     help="shadows and ambient occlusion against the plain shader")
     ap.add_argument("--sizes", default="800x800,1920x1080")
+    ap.add_argument("--cpu", action="store_true", help="CPU time of this thread")
     a = ap.parse_args(argv)
+    if a.cpu:
+        global clock
+        clock = time.thread_time
     reps = 10 if a.quick else 40
     shaders = a.shaders.split(",")
     sizes = [tuple(int(v) for v in s.split("x")) for s in a.sizes.split(",")]

@@ -2,10 +2,10 @@
 much of the sky above a surface point the surfaces the camera sees hide, from the
 visibility buffer the rasteriser already has.
 
-On a grid of half the image's resolution (every other pixel, its first sample), per
-cell: TAPS points in the hemisphere of radius
+On a grid of cells of STEP x STEP pixels (each cell's top-left pixel, its first sample),
+per cell: TAPS points in the hemisphere of radius
 `radius` (metres) about the two-sided normal, at lengths spread from 0.1 to 1 radius, the
-pattern turned about the normal by one of 16 angles in a 4 x 4 tile of pixels. Each point
+pattern turned about the normal by one of 16 angles in a 4 x 4 tile of cells. Each point
 is projected into the image; it is occluded when the surface drawn there is nearer the
 camera than the point, by up to `radius` (a surface much nearer is another object in front,
 not an occluder: its weight falls as radius / depth difference). The pixel's factor is 1
@@ -13,8 +13,9 @@ minus the occluded fraction; a 4 x 4 box filter over cells of similar depth then
 averages the 16 turns of the pattern, so the result has no noise and no per-frame
 flicker (the pattern is fixed: the same frame gives the same image); each output pixel
 takes the factor of the neighbouring cell nearest its depth (no halo at silhouettes).
-Occlusion is a low-frequency term: half the resolution costs a quarter and looks the same.
-The factor scales only the ambient term (shaders/__init__.py: `lit`).
+Occlusion is a low-frequency term, and it scales only the ambient term (shaders/__init__.py:
+`lit`): cells of 4 x 4 pixels cost a quarter of cells of 2 x 2 and change a pixel by at
+most a few levels of 255.
 """
 from __future__ import annotations
 
@@ -29,6 +30,7 @@ from .visibility import view_distance
 
 DEFAULT_RADIUS = 0.1  # metres (render params "ao_radius")
 TAPS = 8
+STEP = 4  # pixels per side of a cell of the grid
 
 
 def _kernel(taps: int) -> np.ndarray:
@@ -50,15 +52,15 @@ TURNS = np.array([(math.cos(k * math.pi / 8.0), math.sin(k * math.pi / 8.0))
 
 @njit(**STAGE)
 def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist):
-    """On the half-resolution grid (cell (i, j) = output pixel (2i, 2j), its first sample):
+    """On the grid of cells (cell (i, j) = output pixel (STEP i, STEP j), its first sample):
     raw = 1 - occluded fraction, dist = view depth (inf: background)."""
     sw = f.width * f.aa
     sh = f.height * f.aa
-    hw = (f.width + 1) // 2
-    for j in range(g, (f.height + 1) // 2, f.groups):
+    hw = (f.width + STEP - 1) // STEP
+    for j in range(g, (f.height + STEP - 1) // STEP, f.groups):
         for i in range(hw):
             c = j * hw + i
-            s = (2 * j * f.aa) * sw + 2 * i * f.aa
+            s = (STEP * j * f.aa) * sw + STEP * i * f.aa
             if f.prim[s] < 0:
                 raw[c] = 1.0
                 dist[c] = np.inf
@@ -106,10 +108,10 @@ def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist)
 
 @njit(**STAGE)
 def blur_pass(f, g, radius, raw, dist, out):
-    """out = the 4 x 4 box average of raw (half-resolution grid) over cells whose depth is
+    """out = the 4 x 4 box average of raw (the grid of cells) over cells whose depth is
     within radius of the centre's: the 16 turns of the tap pattern averaged."""
-    hw = (f.width + 1) // 2
-    hh = (f.height + 1) // 2
+    hw = (f.width + STEP - 1) // STEP
+    hh = (f.height + STEP - 1) // STEP
     for j in range(g, hh, f.groups):
         for i in range(hw):
             c = j * hw + i
@@ -129,24 +131,29 @@ def blur_pass(f, g, radius, raw, dist, out):
 
 
 @njit(**STAGE)
-def upsample_pass(f, g, near, far, depth, dist, half, out):
-    """out[y * width + x] = the half-resolution factor of the nearest of the 2 x 2 cells
-    around output pixel (x, y) whose depth is closest to the pixel's (so that a factor is
-    not carried across a silhouette)."""
+def upsample_pass(f, g, near, far, depth, dist, cells, out):
+    """out[y * width + x] = the factor of the one of the 2 x 2 cells around output pixel
+    (x, y) whose depth is closest to the pixel's (so that a factor is not carried across a
+    silhouette); where the four agree, theirs without the pixel's depth."""
     sw = f.width * f.aa
-    hw = (f.width + 1) // 2
-    hh = (f.height + 1) // 2
+    hw = (f.width + STEP - 1) // STEP
+    hh = (f.height + STEP - 1) // STEP
     for y in range(g, f.height, f.groups):
-        j0 = y // 2
-        j1 = min(j0 + (1 if y & 1 else -1), hh - 1) if y > 0 else 0
+        j0 = y // STEP
+        j1 = min(j0 + (1 if y % STEP else -1), hh - 1) if y > 0 else 0
         for x in range(f.width):
             s = (y * f.aa) * sw + x * f.aa
             if f.prim[s] < 0:
                 out[y * f.width + x] = 1.0
                 continue
+            i0 = x // STEP
+            i1 = min(i0 + (1 if x % STEP else -1), hw - 1) if x > 0 else 0
+            val = cells[j0 * hw + i0]
+            if (cells[j0 * hw + i1] == val and cells[j1 * hw + i0] == val
+                    and cells[j1 * hw + i1] == val):
+                out[y * f.width + x] = val  # whichever is closest (most of the image)
+                continue
             d = view_distance(depth[s], near, far)
-            i0 = x // 2
-            i1 = min(i0 + (1 if x & 1 else -1), hw - 1) if x > 0 else 0
             best = np.inf
             val = 1.0
             for q in range(4):
@@ -154,5 +161,5 @@ def upsample_pass(f, g, near, far, depth, dist, half, out):
                 e = abs(dist[c] - d)
                 if e < best:
                     best = e
-                    val = half[c]
+                    val = cells[c]
             out[y * f.width + x] = val

@@ -22,12 +22,14 @@ from clothjit import njit
 
 from .camera import Camera
 from .occlusion import DEFAULT_RADIUS as AO_RADIUS
+from .occlusion import STEP as AO_STEP
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import TURNS as AO_TURNS
 from .occlusion import blur_pass, occlusion_pass, upsample_pass
 from .shade import Frame, ShaderKey, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
-from .shadow import DEFAULT_RADIUS, MAP_SIZE, ShadowMap, facet_normals, visibility_pass
+from .shadow import (DEFAULT_RADIUS, LEVELS, MAP_SIZE, ShadowMap, shadow_geometry,
+                     visibility_pass)
 from .textures import resolve
 from .visibility import VisibilityBuffer, run_groups
 
@@ -128,13 +130,14 @@ class Renderer:
         self.verts = self.obj_of = self.disp = self.normals = None
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.mesh_vertices = np.zeros(1, np.int64)  # mesh i's vertices: [v_i, v_i+1)
+        self.mesh_prims = np.zeros(1, np.int64)  # mesh i's primitives: [p_i, p_i+1)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.acc = np.empty((0, 3))  # per pixel, with meshes of several shaders
         self.vis = _OFF  # per sample, with shadows
         self.frame = None  # the last frame's shade.Frame
-        # with ambient occlusion: half-resolution raw and filtered factors and depths, and
-        # the factor of every pixel
-        self.occ_raw = self.occ_half = self.occlusion = _OFF
+        # with ambient occlusion: per cell of AO_STEP x AO_STEP pixels the raw and filtered
+        # factors and the depth, and the factor of every pixel
+        self.occ_raw = self.occ_blur = self.occlusion = _OFF
         self.occ_dist = np.empty(0)
         self.threads = None  # None: numba.get_num_threads() (NUMBA_NUM_THREADS)
 
@@ -164,6 +167,7 @@ class Renderer:
         kd = np.empty((max(len(meshes), 1), 3))
         self.casts = np.empty(len(meshes), bool)
         self.mesh_vertices = np.empty(len(meshes) + 1, np.int64)
+        self.mesh_prims = np.empty(len(meshes) + 1, np.int64)
         va, verts = self.va, self.verts
         v = p = 0
         for i, m in enumerate(meshes):
@@ -174,6 +178,7 @@ class Renderer:
                 self.disp = _grow(self.disp, n, (3,), np.float64)
                 pos = own.vertex(m.positions, m.normals, m.uvs, prm, hmap, out=self.disp[:n])
             _pack_vertices(va, v, _ro(pos), _ro(m.normals), _ro(m.uvs), _ro(m.tangents))
+            self.mesh_prims[i] = p
             if lines:
                 if m.edges is not None:
                     k = m.edges.shape[0]
@@ -188,6 +193,7 @@ class Renderer:
             self.mesh_vertices[i] = v
             v += n
         self.mesh_vertices[len(meshes)] = v
+        self.mesh_prims[len(meshes)] = p
         return nv, npr, kd
 
     def render(self, meshes, camera: Camera, light=None, shader="phong", params=None, *,
@@ -283,24 +289,28 @@ class Renderer:
             raise ValueError(f"shadow_map_size must be >= 16, got {size}")
         if self.shadow_map is None or self.shadow_map.size != size:
             self.shadow_map = ShadowMap(size)
-        verts = self.verts[:npr]
-        casting = self.casts[self.obj_of[:npr]]
-        if not casting.all():
-            verts = verts[casting]
-        mv = self.mesh_vertices
-        casters = (self.va[mv[0]:mv[-1], :3] if self.casts.all() else
-                   np.concatenate([self.va[mv[i]:mv[i + 1], :3] for i in
-                                   np.flatnonzero(self.casts)] or [np.empty((0, 3))]))
-        self.shadow_map.build(self.va, nv, verts, casters, lp, radius, groups)
+        # the casting meshes' primitives and vertices, in runs of consecutive meshes: one
+        # slice (no copy) when the planes come first or last, as they usually do
+        mp, mv = self.mesh_prims, self.mesh_vertices
+        runs = [[i, i + 1] for i in np.flatnonzero(self.casts)]
+        for k in range(len(runs) - 1, 0, -1):
+            if runs[k - 1][1] == runs[k][0]:
+                runs[k - 1][1] = runs.pop(k)[1]
+        verts = (self.verts[mp[runs[0][0]]:mp[runs[0][1]]] if len(runs) == 1 else
+                 np.concatenate([self.verts[mp[a]:mp[b]] for a, b in runs] or
+                                [np.empty((0, 3), np.int32)]))
+        vruns = np.array([(mv[a], mv[b]) for a, b in runs], np.int64).reshape(-1, 2)
         self.normals = _grow(self.normals, max(npr, 1), (3,), np.float64)
-        facet_normals(self.va, self.verts[:npr], lp, self.normals)
+        bounds = shadow_geometry(self.va, self.verts[:npr], vruns, lp, self.normals)
+        self.shadow_map.build(self.va, nv, verts, bounds if runs else None, lp, radius,
+                              groups)
         m = self.shadow_map
         ns = self.view.prim.shape[0]
         if self.vis.shape[0] != ns:
             self.vis = np.empty(ns, np.float32)
-        for anchors in (True, False):
+        for level in range(LEVELS, -1, -1):
             run_groups(visibility_pass, groups, (f, m.lin, m.views, m.tanh, m.near, radius,
-                                                 self.normals, anchors, self.vis), first=True)
+                                                 self.normals, level, self.vis), first=True)
         return f._replace(vis=self.vis)
 
     def _occlusion(self, f, camera, params, groups):
@@ -309,10 +319,10 @@ class Renderer:
         if not (math.isfinite(radius) and radius > 0.0):
             raise ValueError(f"ao_radius must be a number > 0, got {radius!r}")
         n = self.width * self.height
-        nh = ((self.width + 1) // 2) * ((self.height + 1) // 2)
+        nh = ((self.width + AO_STEP - 1) // AO_STEP) * ((self.height + AO_STEP - 1) // AO_STEP)
         if self.occlusion.shape[0] != n:
             self.occ_raw = np.empty(nh, np.float32)
-            self.occ_half = np.empty(nh, np.float32)
+            self.occ_blur = np.empty(nh, np.float32)
             self.occ_dist = np.empty(nh)
             self.occlusion = np.empty(n, np.float32)
         depth = self.view.depth
@@ -320,9 +330,9 @@ class Renderer:
                                             camera.far, radius, AO_KERNEL, AO_TURNS, depth,
                                             self.occ_raw, self.occ_dist), first=True)
         run_groups(blur_pass, groups, (f, radius, self.occ_raw, self.occ_dist,
-                                       self.occ_half), first=True)
+                                       self.occ_blur), first=True)
         run_groups(upsample_pass, groups, (f, camera.near, camera.far, depth, self.occ_dist,
-                                           self.occ_half, self.occlusion), first=True)
+                                           self.occ_blur, self.occlusion), first=True)
         return f._replace(occ=self.occlusion)
 
     def light_visibility(self) -> np.ndarray:

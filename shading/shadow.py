@@ -42,6 +42,7 @@ MAP_SIZE = 1024  # texels per side of each view of the map (params "shadow_map_s
 OFFSET_TEXELS = 1.5  # depth bias: receiver plane moved this many texel widths to the light
 SEARCH_TAPS = 4  # blocker search: SEARCH_TAPS x SEARCH_TAPS taps
 MAX_FILTER_TAPS = 8  # penumbra filter: at most MAX_FILTER_TAPS x MAX_FILTER_TAPS taps
+LEVELS = 2  # looked up first at every 2 ** LEVELS-th sample of every 2 ** LEVELS-th row
 # cube faces: the view axis (the direction a face looks along) and an up vector
 _CUBE = (((1, 0, 0), (0, -1, 0)), ((-1, 0, 0), (0, -1, 0)), ((0, 1, 0), (0, 0, 1)),
          ((0, -1, 0), (0, 0, -1)), ((0, 0, 1), (0, -1, 0)), ((0, 0, -1), (0, -1, 0)))
@@ -87,20 +88,19 @@ class ShadowMap:
         self.tanh = np.empty(0)
         self.near = np.empty(0)
 
-    def build(self, va, nv, verts, caster_vertices, light, radius, groups):
-        """Draw the casters (triangles verts, vertex ids into va[:nv]; caster_vertices the
-        positions they use) from the light at `light` (3 numbers) of radius `radius`."""
+    def build(self, va, nv, verts, bounds, light, radius, groups):
+        """Draw the casters (triangles verts, vertex ids into va[:nv]; bounds: their
+        vertices' bounds as `shadow_geometry` gives them, None without casters) from the
+        light at `light` (3 numbers) of radius `radius`."""
         L = np.asarray(light, float)
-        if caster_vertices.shape[0] == 0 or verts.shape[0] == 0:
+        if bounds is None or verts.shape[0] == 0:
             self._views([])
             return
-        lo, hi = caster_vertices.min(axis=0), caster_vertices.max(axis=0)
-        c = 0.5 * (lo + hi)
-        r = float(np.sqrt(((caster_vertices - c) ** 2).sum(axis=1).max()))
-        dist = np.sqrt(((caster_vertices - L) ** 2).sum(axis=1))
+        c0, c1, c2, r, dmin, dmax = bounds
+        c = np.array([c0, c1, c2])
         # a triangle can come nearer the light than its vertices: half the nearest vertex
-        near = max(0.5 * float(dist.min()), 1e-4)
-        far = float(dist.max()) * 1.01 + 1e-4
+        near = max(0.5 * dmin, 1e-4)
+        far = dmax * 1.01 + 1e-4
         d = float(np.linalg.norm(c - L))
         n = self.size
         if d > 1.02 * r:  # one view fitted to the casters' bounding sphere
@@ -134,9 +134,13 @@ class ShadowMap:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def facet_normals(va, verts, lp, out):
+def shadow_geometry(va, verts, runs, lp, out):
     """out[t] = the unit normal of triangle verts[t] (vertex ids into va) on the side of
-    the light at lp (a triangle's plane does not pass through the light's side)."""
+    the light at lp (a triangle's plane does not pass through the light's side); returns
+    the casters' bounds: (centre of the bounding box, radius of the sphere about it,
+    nearest and farthest distance to lp) of the vertices va[a:b, :3] of every run (a, b),
+    the bits of numpy's reductions without their copies of the strided columns (3-4 ms at
+    40k vertices). One kernel: one compile at the first frame with shadows."""
     for t in range(verts.shape[0]):
         i0 = verts[t, 0]
         i1 = verts[t, 1]
@@ -149,6 +153,32 @@ def facet_normals(va, verts, lp, out):
         out[t, 0] = ng[0]
         out[t, 1] = ng[1]
         out[t, 2] = ng[2]
+    lo = (np.inf, np.inf, np.inf)
+    hi = (-np.inf, -np.inf, -np.inf)
+    for k in range(runs.shape[0]):
+        for i in range(runs[k, 0], runs[k, 1]):
+            p = (va[i, 0], va[i, 1], va[i, 2])
+            lo = (p[0] if p[0] < lo[0] else lo[0], p[1] if p[1] < lo[1] else lo[1],
+                  p[2] if p[2] < lo[2] else lo[2])
+            hi = (p[0] if p[0] > hi[0] else hi[0], p[1] if p[1] > hi[1] else hi[1],
+                  p[2] if p[2] > hi[2] else hi[2])
+    cx, cy, cz = 0.5 * (lo[0] + hi[0]), 0.5 * (lo[1] + hi[1]), 0.5 * (lo[2] + hi[2])
+    r2 = 0.0
+    d2lo = np.inf
+    d2hi = 0.0
+    for k in range(runs.shape[0]):
+        for i in range(runs[k, 0], runs[k, 1]):
+            x, y, z = va[i, 0], va[i, 1], va[i, 2]
+            e2 = (x - cx) * (x - cx) + (y - cy) * (y - cy) + (z - cz) * (z - cz)
+            d2 = ((x - lp[0]) * (x - lp[0]) + (y - lp[1]) * (y - lp[1])
+                  + (z - lp[2]) * (z - lp[2]))
+            if e2 > r2:
+                r2 = e2
+            if d2 < d2lo:
+                d2lo = d2
+            if d2 > d2hi:
+                d2hi = d2
+    return cx, cy, cz, math.sqrt(r2), math.sqrt(d2lo), math.sqrt(d2hi)
 
 
 @njit(cache=True, inline="always")
@@ -192,60 +222,90 @@ def _bilinear(lin, k, x, y, n, tanh, nv, c, d):
     return vis
 
 
-@njit(**STAGE)
-def visibility_pass(f, g, lin, views, tanh, near, radius, normals, anchors, out):
-    """out[s] = the light's visibility of each covered sample s in sample rows g,
-    g + f.groups, ...: with `anchors`, of the samples at even (x, y) only; else of the
-    others, each copied from the anchors around it (the two or four at even x and y next to
-    it) when they lie on its object and agree on full light or full shadow, else looked up
-    (penumbrae, shadow edges, silhouettes). A shadow edge runs between anchors that differ,
-    so only a shadow narrower than two samples between agreeing anchors can be missed; the
-    look-ups drop to about a third."""
+# no reference counting: the helpers would otherwise take and drop a reference to every
+# array of the frame per sample (atomic operations: 3-10x the pass's time)
+@njit(**STAGE, _nrt=False)
+def visibility_pass(f, g, lin, views, tanh, near, radius, normals, level, out):
+    """out[s] = the light's visibility of the covered samples of `level` in the rows of
+    group g. Level LEVELS: the samples whose x and y are multiples of 2 ** LEVELS, each
+    looked up. A level l below: the samples of x and y multiples of s = 2 ** l, not both
+    of 2 s, each the middle of an edge or of a cell of the grid of spacing 2 s (done by the
+    levels above), taken from the two or four grid samples around it when they lie on its
+    object and agree on full light or full shadow (copied) or all lie inside a penumbra
+    (interpolated: the ramp is linear there), else looked up (shadow edges, silhouettes).
+    A shadow edge runs between grid samples that differ, so only a shadow narrower than
+    2 ** LEVELS samples between agreeing ones can be missed; about one sample in ten is
+    looked up."""
     sw = f.width * f.aa
     sh = f.height * f.aa
-    for sy in range(g, sh, f.groups):
-        if anchors and sy & 1:
-            continue
-        y0 = sy - (sy & 1)
-        y1 = min(y0 + 2, sh - 1 - ((sh - 1) & 1)) if sy & 1 else y0
-        for sx in range(f.rowlo[sy], f.rowhi[sy] + 1):
-            s = sy * sw + sx
-            m = f.prim[s]
-            if m < 0 or (anchors and sx & 1):
-                continue
-            if not anchors and not (sx & 1 or sy & 1):
-                continue  # an anchor: done
-            if not anchors:
-                x0 = sx - (sx & 1)
-                x1 = min(x0 + 2, sw - 1 - ((sw - 1) & 1)) if sx & 1 else x0
-                o = f.obj_of[m]
-                first = -1.0
-                same = True
-                for q in range(4):
-                    a = (y1 if q >> 1 else y0) * sw + (x1 if q & 1 else x0)
-                    ma = f.prim[a]
-                    if ma < 0 or f.obj_of[ma] != o:
-                        same = False
-                        break
-                    va = out[a]
-                    if q == 0:
-                        first = va
-                    if va != first or (va != 0.0 and va != 1.0):
-                        same = False
-                        break
-                if same:
-                    out[s] = first
+    s = 1 << level
+    top = level == LEVELS
+    rows = (sh + s - 1) // s if top else (sh + 2 * s - 1) // (2 * s)
+    for r in range(g, rows, f.groups):
+        # top: rows r s; below: the row of cells of the grid of spacing 2 s starting at row
+        # 2 r s, whose samples of this level are the middles of each cell's top edge, left
+        # edge and of the cell
+        y0 = r * s if top else 2 * r * s
+        for sy in range(y0, min(y0 + (s if top else 2 * s), sh), s):
+            for sx in range((f.rowlo[sy] + s - 1) & ~(s - 1), f.rowhi[sy] + 1, s):
+                q = sy * sw + sx
+                m = f.prim[q]
+                if m < 0 or not (top or sx & s or sy & s):
+                    continue  # not covered, or a grid sample (done)
+                out[q] = -1.0 if top else _from_grid(f.prim, f.obj_of, out, sw, sh, sx, sy,
+                                                     s, f.obj_of[m])
+    # the samples left at -1: one place that looks up, inlined once
+    for r in range(g, rows, f.groups):
+        y0 = r * s if top else 2 * r * s
+        for sy in range(y0, min(y0 + (s if top else 2 * s), sh), s):
+            for sx in range((f.rowlo[sy] + s - 1) & ~(s - 1), f.rowhi[sy] + 1, s):
+                q = sy * sw + sx
+                m = f.prim[q]
+                if m < 0 or out[q] >= 0.0:
                     continue
-            p, n0, v, _, _, _ = fetch(f, s)
-            out[s] = light_visibility(lin, views, tanh, near, radius,
-                                      (normals[m, 0], normals[m, 1], normals[m, 2]), f.lp, p,
-                                      n0, v)
+                p, n0, v, _, _, _ = fetch(f, q)
+                out[q] = light_visibility(lin, views, tanh, near, radius,
+                                          (normals[m, 0], normals[m, 1], normals[m, 2]),
+                                          f.lp, p, n0, v)
+
+
+@njit(cache=True, inline="always")
+def _from_grid(prim, obj_of, out, sw, sh, x, y, s, o):
+    """The visibility of sample (x, y) of object o, of level s, from the two or four
+    samples of the grid of spacing 2 s around it (see visibility_pass), or -1 (to be
+    looked up)."""
+    x0 = x & ~(2 * s - 1)
+    y0 = y & ~(2 * s - 1)
+    fx = 0.5 if x & s else 0.0
+    fy = 0.5 if y & s else 0.0
+    lo = 2.0
+    hi = -1.0
+    acc = 0.0
+    for k in range(4):
+        if (k & 1 and fx == 0.0) or (k >> 1 and fy == 0.0):
+            continue  # on an edge of the cell: its two ends only
+        cx = x0 + 2 * s * (k & 1)
+        cy = y0 + 2 * s * (k >> 1)
+        if cx >= sw or cy >= sh:
+            return -1.0
+        mc = prim[cy * sw + cx]
+        if mc < 0 or obj_of[mc] != o:
+            return -1.0
+        v = np.float64(out[cy * sw + cx])
+        lo = min(lo, v)
+        hi = max(hi, v)
+        acc += ((fx if k & 1 else 1.0 - fx) * (fy if k >> 1 else 1.0 - fy)) * v
+    if lo == hi and (lo == 0.0 or lo == 1.0):
+        return lo
+    if lo > 0.0 and hi < 1.0:
+        return acc
+    return -1.0
 
 
 @njit(cache=True, inline="always")
 def light_visibility(lin, views, tanh, near, radius, ng, lp, p, n0, v):
     """The light's visibility (0..1) at point p of a triangle whose unit normal facing the
-    light is ng (`facet_normals`; interpolated normal n0, unit vector v to the eye) from
+    light is ng (`shadow_geometry`; interpolated normal n0, unit vector v to the eye) from
     the shadow map (lin, views, tanh, near: ShadowMap's arrays) of the light at lp of
     radius `radius`."""
     if dot(two_sided(n0, v), sub(lp, p)) <= 0.0:
@@ -274,29 +334,29 @@ def _pcss(lin, k, x, y, n, th, nv, c, d, near, radius, tw):
     # the light's disc seen from the receiver covers, at the nearest caster depth, this
     # many texels of the map (radius of the region)
     rs = radius * (d - near) / (d * near) / (2.0 * th / n)
-    if rs < 1.0:
-        return _bilinear(lin, k, x, y, n, th, nv, c, d)
-    rs = min(rs, n / 8.0)
-    found = 0
-    zb = 0.0
-    for q in range(SEARCH_TAPS * SEARCH_TAPS):
-        ox = (2.0 * (q % SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
-        oy = (2.0 * (q // SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
-        z, hit = _tap(lin, k, int(math.floor(x + ox + 0.5)), int(math.floor(y + oy + 0.5)),
-                      n, th, nv, c, d)
-        if hit:
-            found += 1
-            zb = max(zb, z)
-    if found == 0:
-        return 1.0
-    if found == SEARCH_TAPS * SEARCH_TAPS:
-        return 0.0  # blockers all over the light's disc: the umbra
-    rf = radius * (d - zb) / zb / tw  # the penumbra's half width, in texels
-    if rf < 1.0:
-        return _bilinear(lin, k, x, y, n, th, nv, c, d)
+    rf = 0.0  # the penumbra's half width, in texels
+    if rs >= 1.0:
+        rs = min(rs, n / 8.0)
+        found = 0
+        zb = 0.0
+        for q in range(SEARCH_TAPS * SEARCH_TAPS):
+            ox = (2.0 * (q % SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
+            oy = (2.0 * (q // SEARCH_TAPS) / (SEARCH_TAPS - 1) - 1.0) * rs
+            z, hit = _tap(lin, k, int(math.floor(x + ox + 0.5)),
+                          int(math.floor(y + oy + 0.5)), n, th, nv, c, d)
+            if hit:
+                found += 1
+                zb = max(zb, z)
+        if found == 0:
+            return 1.0
+        if found == SEARCH_TAPS * SEARCH_TAPS:
+            return 0.0  # blockers all over the light's disc: the umbra
+        rf = radius * (d - zb) / zb / tw
     # bilinear taps at the centres of taps x taps equal cells of the filter's square: the
-    # box filter's linear ramp, not a staircase of taps x taps levels
-    taps = min(MAX_FILTER_TAPS, int(math.ceil(rf)) + 1)
+    # box filter's linear ramp, not a staircase of taps x taps levels; under a texel, one
+    # tap at (x, y) (a hard shadow with a smooth edge). One call site: _bilinear is
+    # inlined once, not three times (the pass's compile)
+    taps = 1 if rf < 1.0 else min(MAX_FILTER_TAPS, int(math.ceil(rf)) + 1)
     lit = 0.0
     for q in range(taps * taps):
         ox = ((2.0 * (q % taps) + 1.0) / taps - 1.0) * rf

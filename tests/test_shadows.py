@@ -209,6 +209,21 @@ def test_hard_shadows_agree_with_ray_casting(among):
     assert agree.mean() >= 0.99
 
 
+def test_every_covered_sample_gets_its_visibility():
+    """An image whose sides are not multiples of the look-ups' coarsest grid: every covered
+    sample is written, the same values again over a buffer of NaN."""
+    meshes, _, lp = random_scene(11)
+    cam = Camera((0.35, 1.5, 1.75), (0.0, 0.15, 0.0), width=157, height=118)
+    r = Renderer(cam.width, cam.height)
+    r.render(meshes, cam, light(lp), "diffuse", {"shadows": True})
+    first = r.light_visibility()
+    r.vis[:] = np.nan
+    r.render(meshes, cam, light(lp), "diffuse", {"shadows": True})
+    covered = r.prim >= 0
+    assert np.all(np.isfinite(first[covered]))
+    np.testing.assert_array_equal(r.light_visibility()[covered], first[covered])
+
+
 def crossing(s: np.ndarray, v: np.ndarray, level: float) -> float:
     """Where v (rising with s, sorted by s) last crosses `level`, linearly interpolated."""
     k = np.nonzero(v < level)[0][-1]
