@@ -254,18 +254,23 @@ def mesh_fem_energy(x, fem):
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
 def mesh_limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
     """Provot's limit on the structural springs in list order (constraints.limit_stretch's
-    rule; `limit` (1, S) is 1.1 rest; `exist_bits`, `limit_sq_lo` and `scratch` unused)."""
-    a, b, lim_row = springs.a, springs.b, limit[0]
+    rule; `limit` (1, S) is 1.1 rest, `limit_sq_lo` its square lowered by 1e-9 relative: a
+    spring not longer than that is short of its limit and takes no square root, as in
+    limit_stretch's pre-pass; `exist_bits` and `scratch` unused)."""
+    a, b, lim_row, lim_sq_row = springs.a, springs.b, limit[0], limit_sq_lo[0]
     for s in range(springs.structural):
         p, q = a[s], b[s]
+        dx = x[0, q] - x[0, p]
+        dy = x[1, q] - x[1, p]
+        dz = x[2, q] - x[2, p]
+        length_sq = dx * dx + dy * dy + dz * dz
+        if length_sq <= lim_sq_row[s]:
+            continue
         pa = pinned[p] != 0
         pb = pinned[q] != 0
         if pa and pb:
             continue
-        dx = x[0, q] - x[0, p]
-        dy = x[1, q] - x[1, p]
-        dz = x[2, q] - x[2, p]
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        length = np.sqrt(length_sq)
         lim = lim_row[s]
         if length > lim:
             shorten(x, p, q, dx, dy, dz, length, lim, pa, pb)
