@@ -241,32 +241,29 @@ def visibility_pass(f, g, lin, views, tanh, near, radius, normals, level, out):
     s = 1 << level
     top = level == LEVELS
     rows = (sh + s - 1) // s if top else (sh + 2 * s - 1) // (2 * s)
-    for r in range(g, rows, f.groups):
-        # top: rows r s; below: the row of cells of the grid of spacing 2 s starting at row
-        # 2 r s, whose samples of this level are the middles of each cell's top edge, left
-        # edge and of the cell
-        y0 = r * s if top else 2 * r * s
-        for sy in range(y0, min(y0 + (s if top else 2 * s), sh), s):
-            for sx in range((f.rowlo[sy] + s - 1) & ~(s - 1), f.rowhi[sy] + 1, s):
-                q = sy * sw + sx
-                m = f.prim[q]
-                if m < 0 or not (top or sx & s or sy & s):
-                    continue  # not covered, or a grid sample (done)
-                out[q] = -1.0 if top else _from_grid(f.prim, f.obj_of, out, sw, sh, sx, sy,
-                                                     s, f.obj_of[m])
-    # the samples left at -1: one place that looks up, inlined once
-    for r in range(g, rows, f.groups):
-        y0 = r * s if top else 2 * r * s
-        for sy in range(y0, min(y0 + (s if top else 2 * s), sh), s):
-            for sx in range((f.rowlo[sy] + s - 1) & ~(s - 1), f.rowhi[sy] + 1, s):
-                q = sy * sw + sx
-                m = f.prim[q]
-                if m < 0 or out[q] >= 0.0:
-                    continue
-                p, n0, v, _, _, _ = fetch(f, q)
-                out[q] = light_visibility(lin, views, tanh, near, radius,
-                                          (normals[m, 0], normals[m, 1], normals[m, 2]),
-                                          f.lp, p, n0, v)
+    # two passes over the level's samples: from the grid (or -1), then the samples left at
+    # -1 looked up (one place that looks up, inlined once)
+    for look in range(2):
+        for r in range(g, rows, f.groups):
+            # top: rows r s; below: the row of cells of the grid of spacing 2 s starting at
+            # row 2 r s, whose samples of this level are the middles of each cell's top
+            # edge, left edge and of the cell
+            y0 = r * s if top else 2 * r * s
+            for sy in range(y0, min(y0 + (s if top else 2 * s), sh), s):
+                for sx in range((f.rowlo[sy] + s - 1) & ~(s - 1), f.rowhi[sy] + 1, s):
+                    q = sy * sw + sx
+                    m = f.prim[q]
+                    if m < 0:
+                        continue  # not covered
+                    if look == 0:
+                        if top or sx & s or sy & s:  # else a grid sample (done)
+                            out[q] = -1.0 if top else _from_grid(
+                                f.prim, f.obj_of, out, sw, sh, sx, sy, s, f.obj_of[m])
+                    elif out[q] < 0.0:
+                        p, n0, v, _, _, _ = fetch(f, q)
+                        out[q] = light_visibility(lin, views, tanh, near, radius,
+                                                  (normals[m, 0], normals[m, 1], normals[m, 2]),
+                                                  f.lp, p, n0, v)
 
 
 @njit(cache=True, inline="always")
