@@ -96,9 +96,15 @@ ALL_TABLES = [base + list(kinds) + poses
 LOOPS = [(["pipeline.physics.colliders:_collide_serially"], ["pipeline.physics.constraints:_mark_serially"]),
          (["pipeline.physics.colliders:_collide_in_chunks"], ["pipeline.physics.constraints:_mark_in_chunks"])]
 WINDS = [[], ["pipeline.physics.wind:add_wind_force", "pipeline.physics.wind:_band"]]
+ROBUST = ["pipeline.physics.contact:robust_contact",
+          "pipeline.physics.collider_contact:robust_colliders"]
+# robust contact's colliders with a solid or a one-sided mesh (a horizontal cloth: no
+# self-contact, no pair visits): the meshes' pass and that kind's stages
+ROBUST_MESH = ROBUST + ["pipeline.physics.mesh_contact:mesh_colliders"]
 SELF = [[], ["pipeline.physics.self_collision:self_collide"],
-        ["pipeline.physics.contact:robust_contact", "pipeline.physics.contact:_visit",
-         "pipeline.physics.collider_contact:robust_colliders"]]
+        ROBUST + ["pipeline.physics.contact:_visit"],
+        ROBUST_MESH + ["pipeline.physics.mesh_contact:solid_stage"],
+        ROBUST_MESH + ["pipeline.physics.mesh_contact:sheet_stage"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
             "pipeline.physics.integrators.implicit_euler:_update"]
 # VBD's: one descent over flat element lists for every model and cloth, its colours' loop
@@ -196,7 +202,10 @@ def test_every_job_of_a_scene_has_an_estimate(tmp_path):
     larger = ["cloth.num_width_points=80", "cloth.num_height_points=80"]  # the parallel loop
     for path, overrides in [(p, []) for p in sorted(SCENES.glob("*.json"))] + [
             (SCENES / "sphere.json", larger),
-            (SCENES / "selfCollision.json", ["simulation.contact=robust"])] + _mesh_variants(tmp_path):
+            (SCENES / "selfCollision.json", ["simulation.contact=robust"]),
+            (SCENES / "bowl.json", ["simulation.contact=robust"]),  # a solid mesh collider
+            (SCENES / "bowl.json", ["simulation.contact=robust", "mesh.solid=false"])
+    ] + _mesh_variants(tmp_path):
         scene = load_scene(path, overrides)
         system = build_system(scene, cloth_model(scene))
         names = {job.name for job in warmup.sim_jobs(system)}

@@ -162,6 +162,11 @@ COMPILE_SECONDS = {
     "pipeline.physics.integrators.vbd:descend_in_chunks": 0.7,
     "pipeline.physics.integrators.vbd:_velocities": 0.15,
     "pipeline.physics.collider_contact:robust_colliders": 3.0,
+    # robust contact's mesh colliders (issue 43), one cold process each, CPU seconds
+    # (2026-11-28, the robust bowl and open bowl of benchmarks/contact.py), not scaled
+    "pipeline.physics.mesh_contact:mesh_colliders": 0.6,
+    "pipeline.physics.mesh_contact:solid_stage": 7.0,
+    "pipeline.physics.mesh_contact:sheet_stage": 5.9,
 }
 # every renderer kernel for one shader: 11.2 s alone, but beside the simulator's kernels
 # they took 11.3-13.1 s in the helper where those took 1.24-1.33x their time alone
@@ -236,8 +241,8 @@ def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
     (System.kernels), Provot's pre-pass and its passes, the colliders' point range and loop
     over the points, mesh projection, sweeps and keyframe poses, the wind's band and the
-    FEM's elements, robust contact's visits (not the absent ones of passes the scene does not
-    use)."""
+    FEM's elements, robust contact's visits and mesh-collider passes (not the absent ones of
+    passes the scene does not use)."""
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
                 *_table_pointers(system.colliders)]
@@ -246,8 +251,9 @@ def kernel_pointers(system) -> list:
     if isinstance(system.fem, FemParams):  # absent for the classic grid; a mesh's (MeshFem)
         # has no element pointers
         pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]
-    if system.contact is not None:  # robust contact's pair visits
-        pointers.append(system.contact.visit)
+    if system.contact is not None:  # robust contact's pair visits, its mesh colliders' passes
+        c = system.contact
+        pointers += [c.visit, c.mesh_pass, c.solid_stage, c.sheet_stage]
     return [p for p in pointers if p is not None and p.present]
 
 
