@@ -45,6 +45,13 @@ def _cross(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
+def orient(a, b, c, d):
+    """Six times the signed volume of the tetrahedron (a, b, c, d); swapping c and d
+    negates it exactly (robust contact's and the mesh colliders' crossing tests)."""
+    return _dot(_sub(b, a), _cross(_sub(c, a), _sub(d, a)))
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def coplanarity_cubic(e1, d1, e2, d2, w, dw):
     """Coefficients (c0, c1, c2, c3) of f(t) = ((e1 + t d1) x (e2 + t d2)) . (w + t dw)."""

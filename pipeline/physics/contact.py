@@ -36,7 +36,8 @@ from numba.core import types
 from clothjit import KernelPointer, njit
 
 from .collider_contact import FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP
-from .ccd import edge_edge_distance, edge_edge_impact, point_triangle_distance, point_triangle_impact
+from .ccd import (edge_edge_distance, edge_edge_impact, orient, point_triangle_distance,
+                  point_triangle_impact)
 from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 
 CCD_ROUNDS = 4
@@ -628,23 +629,13 @@ def _respond(x0, x1, c, ids, weights, normal, amount, friction):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _orient(a, b, c, d):
-    """Six times the signed volume of the tetrahedron (a, b, c, d)."""
-    e1 = (b[0] - a[0], b[1] - a[1], b[2] - a[2])
-    e2 = (c[0] - a[0], c[1] - a[1], c[2] - a[2])
-    e3 = (d[0] - a[0], d[1] - a[1], d[2] - a[2])
-    return (e1[0] * (e2[1] * e3[2] - e2[2] * e3[1]) - e1[1] * (e2[0] * e3[2] - e2[2] * e3[0])
-            + e1[2] * (e2[0] * e3[1] - e2[1] * e3[0]))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def segment_crosses_triangle(p, q, a, b, c):
     """Whether the segment p-q passes through the triangle (a, b, c): its ends strictly on
     opposite sides of the triangle's plane and its line strictly inside the triangle."""
-    sp, sq = _orient(a, b, c, p), _orient(a, b, c, q)
+    sp, sq = orient(a, b, c, p), orient(a, b, c, q)
     if not ((sp > 0.0 and sq < 0.0) or (sp < 0.0 and sq > 0.0)):
         return False
-    u, v, w = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
+    u, v, w = orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)
     return (u > 0.0 and v > 0.0 and w > 0.0) or (u < 0.0 and v < 0.0 and w < 0.0)
 
 

@@ -49,7 +49,7 @@ from numba.core import types
 from clothjit import KernelPointer, njit
 
 from . import sdf
-from .ccd import _cross, _dot, _sub, point_triangle_distance
+from .ccd import _cross, _dot, _sub, orient, point_triangle_distance
 from .collider_contact import (FACE_PUSHES, FACE_ROUNDS, MIN_FREE_WEIGHT, MOVED_OUT, NOT_KEPT,
                                PATH_STOPS, PIN_POINT, PIN_STEP, SURFACE_GAP, _rest, _rotate,
                                _world)
@@ -215,18 +215,12 @@ def _height(m, f, p):
     return pl[f, 0] * p[0] + pl[f, 1] * p[1] + pl[f, 2] * p[2] - pl[f, 3]
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _orient(a, b, c, d):
-    """Six times the signed volume of (a, b, c, d); swapping c and d negates it exactly."""
-    return _dot(_sub(b, a), _cross(_sub(c, a), _sub(d, a)))
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _line_through(m, f, p, q):
     """Whether the line p-q passes through the closed triangle f (its three orientations
     not of both signs, not all zero)."""
     a, b, c = _corner(m, f, 0), _corner(m, f, 1), _corner(m, f, 2)
-    u, v, w = _orient(p, q, a, b), _orient(p, q, b, c), _orient(p, q, c, a)
+    u, v, w = orient(p, q, a, b), orient(p, q, b, c), orient(p, q, c, a)
     if u == 0.0 and v == 0.0 and w == 0.0:
         return False
     return not ((u > 0.0 or v > 0.0 or w > 0.0) and (u < 0.0 or v < 0.0 or w < 0.0))
@@ -484,7 +478,7 @@ def _over_rim(m, f, p, q, free_p, free_q):
         size = _length(g)
         if size == 0.0:
             continue
-        o = _orient(p, q, a, b)
+        o = orient(p, q, a, b)
         push = abs(o) / size + SURFACE_GAP
         if push < best:
             k = (-push if o > 0.0 else push) / size
