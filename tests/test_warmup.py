@@ -101,7 +101,12 @@ ROBUST = ["pipeline.physics.contact:robust_contact",
 # robust contact's colliders with a solid or a one-sided mesh (a horizontal cloth: no
 # self-contact, no pair visits): the meshes' pass and that kind's stages
 ROBUST_MESH = ROBUST + ["pipeline.physics.mesh_contact:mesh_colliders"]
-SELF = [[], ["pipeline.physics.self_collision:self_collide"],
+# the course's self-collision: its boxes pushed serially, or on the threads from
+# self_collision.PARALLEL_POINTS points on (selfCollision's 2500)
+SELF = [[], ["pipeline.physics.self_collision:self_collide",
+             "pipeline.physics.self_collision:_push_members"],
+        ["pipeline.physics.self_collision:self_collide_in_chunks",
+         "pipeline.physics.self_collision:_push_members"],
         ROBUST + ["pipeline.physics.contact:_visit"],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:solid_stage"],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:sheet_stage"]]
@@ -264,7 +269,9 @@ def test_one_stepping_kernel_serves_both_models_wind_self_collision_and_both():
         names = {job.name for job in warmup.sim_jobs(system)}
         assert ("pipeline.physics.wind:add_wind_force" in names) == (wind in extra)
         assert ("pipeline.physics.wind:_band" in names) == (wind in extra)
-        assert ("pipeline.physics.self_collision:self_collide" in names) == (self_on in extra)
+        assert ("pipeline.physics.self_collision:self_collide_in_chunks" in names) == (
+            self_on in extra)  # pinned2's 2500 points
+        assert ("pipeline.physics.self_collision:_push_members" in names) == (self_on in extra)
         assert ("pipeline.physics.fem:_triangles" in names) == (model == "fem")
         assert ("pipeline.physics.constraints:limit_stretch" in names) == (model == "classic")
         if not extra:

@@ -18,9 +18,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from clothjit import njit
+from clothjit import njit, prange
+
+from .forces import CHUNKS
 
 _EMPTY_LIMIT = 4.0e18  # box coordinates beyond this (or NaN) are not binned
+# From this many points on, the boxes are pushed on the threads (self_collide_in_chunks)
+PARALLEL_POINTS = 1000
 DENSE_CELLS_PER_POINT = 8  # box grids up to this many cells per point use the counting sort
 
 
@@ -128,7 +132,8 @@ def _hash_boxes(box, bucket_of, keys, slot_bucket, slot_generation, generation):
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
 def _bin(x, w, h, t, scratch):
-    """Assign boxes, sort members by box (ascending point order inside), copy positions."""
+    """Assign boxes, sort members by box (ascending point order inside), copy positions;
+    returns how many points were binned (members[:count])."""
     (keys, slot_bucket, slot_generation, generation, box, bucket_of, start, fill, members,
      xs, slot_of, _) = scratch
     n = x.shape[1]
@@ -154,6 +159,7 @@ def _bin(x, w, h, t, scratch):
             xs[0, m] = x[0, p]
             xs[1, m] = x[1, p]
             xs[2, m] = x[2, p]
+    return start[nbuckets]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -168,33 +174,34 @@ def _squared_distances(px, py, pz, xs, lo, hi, out):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
-def self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch):
-    """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel);
-    the boxes are box_w x box_h x max(box_w, box_h) (collision_box)."""
+def _push_members(x, pinned, thickness, steps_per_frame, scratch, lo, hi):
+    """The pushes of the points members[lo:hi], whole boxes, in that order. A point reads
+    and moves only the members of its own box, so boxes are independent: this order and
+    any split into runs of whole boxes give the course's row-major order's bits (within a
+    box the members are in ascending point order). A box's slots of dist_sq are its
+    scratch."""
     bucket_of, start, members, xs, slot_of, dist_sq = (
         scratch[5], scratch[6], scratch[8], scratch[9], scratch[10], scratch[11])
-    n = x.shape[1]
-    w, h = box_w, box_h
-    t = max(w, h)
     threshold = 2.0 * thickness
     threshold_sq_hi = threshold * threshold * (1.0 + 1e-9)
-    _bin(x, w, h, t, scratch)
-    for p in range(n):
-        b = bucket_of[p]
-        if pinned[p] or b < 0:
+    for j in range(lo, hi):
+        p = members[j]
+        if pinned[p]:
             continue
-        lo, hi = start[b], start[b + 1]
+        b = bucket_of[p]
+        first, last = start[b], start[b + 1]
         px, py, pz = x[0, p], x[1, p], x[2, p]
-        _squared_distances(px, py, pz, xs, lo, hi, dist_sq)
+        near = dist_sq[first:last]
+        _squared_distances(px, py, pz, xs, first, last, near)
         sx = sy = sz = 0.0
         hits = 0
-        for i in range(hi - lo):
-            if not dist_sq[i] < threshold_sq_hi:  # cheap reject; the exact test is below
+        for i in range(last - first):
+            if not near[i] < threshold_sq_hi:  # cheap reject; the exact test is below
                 continue
-            m = lo + i
+            m = first + i
             if members[m] == p:
                 continue
-            dist = np.sqrt(dist_sq[i])
+            dist = np.sqrt(near[i])
             if dist < threshold and dist > 0.0:
                 push = threshold - dist
                 sx += ((px - xs[0, m]) / dist) * push
@@ -209,3 +216,29 @@ def self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch):
             xs[0, m] = x[0, p]
             xs[1, m] = x[1, p]
             xs[2, m] = x[2, p]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
+def self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch, push):
+    """Push apart points of x (3, N) closer than 2 * thickness, in place (Gauss-Seidel);
+    the boxes are box_w x box_h x max(box_w, box_h) (collision_box); `push` the
+    _push_members pointer."""
+    binned = _bin(x, box_w, box_h, max(box_w, box_h), scratch)
+    push(x, pinned, thickness, steps_per_frame, scratch, 0, binned)
+
+
+@njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
+def self_collide_in_chunks(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch,
+                           push):
+    """self_collide with the boxes in CHUNKS runs of about equal member counts on the
+    threads (the same bits: see _push_members)."""
+    bucket_of, start, members = scratch[5], scratch[6], scratch[8]
+    binned = _bin(x, box_w, box_h, max(box_w, box_h), scratch)
+    if binned == 0:
+        return
+    for c in prange(CHUNKS):
+        # each run from the start of the box holding its share's first member
+        lo = start[bucket_of[members[(c * binned) // CHUNKS]]] if c > 0 else 0
+        hi = (start[bucket_of[members[((c + 1) * binned) // CHUNKS]]] if c < CHUNKS - 1
+              else binned)
+        push(x, pinned, thickness, steps_per_frame, scratch, lo, hi)

@@ -31,7 +31,8 @@ from .pin_motion import PinMotion, move_pins
 from .mesh_wind import MeshWind, add_mesh_wind_force, pack_mesh_wind
 from .model import DIRECTION_DI, DIRECTION_DJ, ClothModel, initial_grid
 from .reach import Reach, new_reach, reach_check
-from .self_collision import SelfCollisionScratch, self_collide
+from .self_collision import (PARALLEL_POINTS as SELF_PARALLEL_POINTS, SelfCollisionScratch,
+                             _push_members, self_collide, self_collide_in_chunks)
 from .wind import WindParams, add_wind_force, max_wind_speed, pack_wind
 
 
@@ -58,6 +59,7 @@ class StepKernels(NamedTuple):
     collide: KernelPointer  # colliders.collide_all
     stretch: KernelPointer  # constraints.limit_stretch; absent with the FEM (no Provot)
     self_collide: KernelPointer | None  # self_collision.self_collide; absent or None: off
+    self_push: KernelPointer | None  # self_collision._push_members, the pass's pushes
     wind: KernelPointer | None  # wind.add_wind_force; absent or None: no wind
     reach: KernelPointer  # reach.reach_check (linked, it was a sixth of every stepping kernel)
     contact: KernelPointer | None = None  # contact.robust_contact; None: the course contact
@@ -194,6 +196,18 @@ def stretch_limit_acts(scene: Scene, classic: bool) -> bool:
     return classic and not (sim.integrator == "vbd" and sim.fidelity != "auto")
 
 
+def _self_collision_pointers(s: System, field) -> tuple[KernelPointer, KernelPointer]:
+    """The self-collision pass (its boxes on the threads from SELF_PARALLEL_POINTS points)
+    and the pushes it runs over runs of boxes."""
+    present = s.self_collision
+    push = KernelPointer(_push_members, (field, s.pinned, s.thickness, s.steps_per_frame,
+                                         s.scratch, types.int64, types.int64), present=present)
+    loop = (self_collide_in_chunks if s.x0.shape[1] >= SELF_PARALLEL_POINTS else
+            self_collide)
+    return KernelPointer(loop, (field, s.pinned, *s.collision_box, s.thickness,
+                                s.steps_per_frame, s.scratch, push), present=present), push
+
+
 def step_kernels(s: System) -> StepKernels:
     """Pointers to the System's passes, typed as the stepping kernels call them."""
     field = types.float64[:, ::1]  # positions, last positions, forces: (3, N)
@@ -206,6 +220,8 @@ def step_kernels(s: System) -> StepKernels:
         order, s.mass, s.gravity, classic and not mesh)
     internal = ((mesh_internal_forces if classic else mesh_fem_internal_forces) if mesh
                 else (internal_forces if classic else fem_internal_forces))
+    self_collide, self_push = (None, None) if s.scratch is None else \
+        _self_collision_pointers(s, field)
     return StepKernels(
         internal=KernelPointer(internal, (
             field, s.fem, s.springs, s.mass, s.gravity, s.spring_force, springs, field)),
@@ -214,9 +230,7 @@ def step_kernels(s: System) -> StepKernels:
         stretch=KernelPointer(mesh_limit_stretch if mesh else limit_stretch, (
             field, s.springs, s.exist_bits, s.limit, s.limit_sq_lo, s.pinned, s.mask),
             present=s.stretch_limit),
-        self_collide=None if s.scratch is None else KernelPointer(self_collide, (
-            field, s.pinned, *s.collision_box, s.thickness, s.steps_per_frame,
-            s.scratch), present=s.self_collision),
+        self_collide=self_collide, self_push=self_push,
         wind=None if s.wind is None else KernelPointer(
             add_mesh_wind_force if mesh else add_wind_force, (field, field, 0.0, s.wind, field),
             present=s.wind.on),
@@ -447,7 +461,8 @@ def position_passes(x, last, system, t_start):
     k.reach(x, s.reach, s.colliders.active, s.thickness)
     box_w, box_h = s.collision_box
     _self_collision_pass(x, s.pinned, box_w, box_h, s.thickness, s.steps_per_frame, s.scratch,
-                         k.self_collide, s.self_collision, s.reach.self_on, s.reach.counts)
+                         k.self_collide, k.self_push, s.self_collision, s.reach.self_on,
+                         s.reach.counts)
     if not s.colliders_last:
         k.collide(x, last, s.pinned, s.colliders, t_start, t_start + s.dt)
     if s.stretch_limit:  # the FEM's stretch pointer is absent (VBD's too)
@@ -474,12 +489,12 @@ def _contact_pass(x, x0, contact, robust, colliders, robust_colliders):
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
 def _self_collision_pass(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch,
-                         self_collide, on, self_on, counts):
+                         self_collide, push, on, self_on, counts):
     # `self_collide` is None (numba prunes the pass) or absent (never compiled: 5 s on a
     # first run) when the scene turns self-collision off (`on` False)
     if self_collide is not None and on and self_on[0]:
         counts[1] += 1
-        self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch)
+        self_collide(x, pinned, box_w, box_h, thickness, steps_per_frame, scratch, push)
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True)
