@@ -2,8 +2,9 @@
 much of the sky above a surface point the surfaces the camera sees hide, from the
 visibility buffer the rasteriser already has.
 
-On a grid of cells of STEP x STEP pixels (each cell's top-left pixel, its first sample),
-per cell: TAPS points in the hemisphere of radius
+On a grid of cells of `cell_step` pixels a side (each cell's top-left pixel, its first
+sample; 4 up to 607 pixels on the frame's shorter side, 6 at 800, 8 at 1080), per cell:
+TAPS points in the hemisphere of radius
 `radius` (metres) about the two-sided normal, at lengths spread from 0.1 to 1 radius, the
 pattern turned about the normal by one of 16 angles in a 4 x 4 tile of cells. Each point
 is projected into the image; it is occluded when the surface drawn there is nearer the
@@ -15,7 +16,7 @@ flicker (the pattern is fixed: the same frame gives the same image); each output
 takes the factor of the neighbouring cell nearest its depth (no halo at silhouettes).
 Occlusion is a low-frequency term, and it scales only the ambient term (shaders/__init__.py:
 `lit`): cells of 4 x 4 pixels cost a quarter of cells of 2 x 2 and change a pixel by at
-most a few levels of 255.
+most a few levels of 255, and cells of 6 instead of 4 at 800 x 800 by at most 5.
 """
 from __future__ import annotations
 
@@ -30,7 +31,15 @@ from .visibility import view_distance
 
 DEFAULT_RADIUS = 0.1  # metres (render params "ao_radius")
 TAPS = 8
-STEP = 4  # pixels per side of a cell of the grid
+STEP = 4  # pixels per side of a cell of the grid, at least (cell_step)
+CELLS = 135  # cells along the frame's shorter side, at most
+
+
+def cell_step(width: int, height: int) -> int:
+    """The cells' side in pixels for a width x height frame: about 1 / CELLS of its
+    shorter side, at least STEP (800 pixels: 6, 1080: 8; the same cells on the scene
+    whatever the size, as the occlusion's radius is)."""
+    return max(STEP, round(min(width, height) / CELLS))
 
 
 def _kernel(taps: int) -> np.ndarray:
@@ -51,16 +60,17 @@ TURNS = np.array([(math.cos(k * math.pi / 8.0), math.sin(k * math.pi / 8.0))
 
 
 @njit(**STAGE)
-def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist):
-    """On the grid of cells (cell (i, j) = output pixel (STEP i, STEP j), its first sample):
-    raw = 1 - occluded fraction, dist = view depth (inf: background)."""
+def occlusion_pass(f, g, step, vp, near, far, radius, kernel, turns, depth, raw, dist):
+    """On the grid of cells of `step` pixels (cell (i, j) = output pixel (i, j) times the
+    step, its first sample): raw = 1 - occluded fraction, dist = view depth (inf:
+    background)."""
     sw = f.width * f.aa
     sh = f.height * f.aa
-    hw = (f.width + STEP - 1) // STEP
-    for j in range(g, (f.height + STEP - 1) // STEP, f.groups):
+    hw = (f.width + step - 1) // step
+    for j in range(g, (f.height + step - 1) // step, f.groups):
         for i in range(hw):
             c = j * hw + i
-            s = (STEP * j * f.aa) * sw + STEP * i * f.aa
+            s = (step * j * f.aa) * sw + step * i * f.aa
             if f.prim[s] < 0:
                 raw[c] = 1.0
                 dist[c] = np.inf
@@ -107,11 +117,11 @@ def occlusion_pass(f, g, vp, near, far, radius, kernel, turns, depth, raw, dist)
 
 
 @njit(**STAGE)
-def blur_pass(f, g, radius, raw, dist, out):
+def blur_pass(f, g, step, radius, raw, dist, out):
     """out = the 4 x 4 box average of raw (the grid of cells) over cells whose depth is
     within radius of the centre's: the 16 turns of the tap pattern averaged."""
-    hw = (f.width + STEP - 1) // STEP
-    hh = (f.height + STEP - 1) // STEP
+    hw = (f.width + step - 1) // step
+    hh = (f.height + step - 1) // step
     for j in range(g, hh, f.groups):
         for i in range(hw):
             c = j * hw + i
@@ -131,35 +141,48 @@ def blur_pass(f, g, radius, raw, dist, out):
 
 
 @njit(**STAGE)
-def upsample_pass(f, g, near, far, depth, dist, cells, out):
-    """out[y * width + x] = the factor of the one of the 2 x 2 cells around output pixel
-    (x, y) whose depth is closest to the pixel's (so that a factor is not carried across a
-    silhouette); where the four agree, theirs without the pixel's depth."""
-    sw = f.width * f.aa
-    hw = (f.width + STEP - 1) // STEP
-    hh = (f.height + STEP - 1) // STEP
+def upsample_pass(f, g, step, near, far, depth, dist, cells, out):
+    """out[y * width + x] = the factor of output pixel (x, y) (on the background:
+    undefined), rows g, g + f.groups, ...: of the 2 x 2 cells around it, their common
+    factor (most of the image: a store per pixel), or where they differ the factor of the
+    cell whose depth is nearest the pixel's (so that none is carried across a silhouette).
+    By cells of a row: no division per pixel."""
+    hw = (f.width + step - 1) // step
+    hh = (f.height + step - 1) // step
     for y in range(g, f.height, f.groups):
-        j0 = y // STEP
-        j1 = min(j0 + (1 if y % STEP else -1), hh - 1) if y > 0 else 0
-        for x in range(f.width):
-            s = (y * f.aa) * sw + x * f.aa
-            if f.prim[s] < 0:
-                out[y * f.width + x] = 1.0
-                continue
-            i0 = x // STEP
-            i1 = min(i0 + (1 if x % STEP else -1), hw - 1) if x > 0 else 0
+        j0 = y // step
+        j1 = min(j0 + (1 if y % step else -1), hh - 1) if y > 0 else 0
+        row = (y * f.aa) * (f.width * f.aa)
+        o = y * f.width
+        for i0 in range(hw):
+            xs = i0 * step
+            xe = min(f.width, xs + step)
             val = cells[j0 * hw + i0]
-            if (cells[j0 * hw + i1] == val and cells[j1 * hw + i0] == val
-                    and cells[j1 * hw + i1] == val):
-                out[y * f.width + x] = val  # whichever is closest (most of the image)
-                continue
-            d = view_distance(depth[s], near, far)
-            best = np.inf
-            val = 1.0
-            for q in range(4):
-                c = (j1 if q >> 1 else j0) * hw + (i1 if q & 1 else i0)
-                e = abs(dist[c] - d)
-                if e < best:
-                    best = e
-                    val = cells[c]
-            out[y * f.width + x] = val
+            same = False
+            i1 = 0
+            for x in range(xs, xe):
+                if x <= xs + 1:  # the cells around: the cell's own column pairs with the
+                    # one before, the others with the one after
+                    i1 = min(i0 + (1 if x > xs else -1), hw - 1) if x > 0 else 0
+                    same = (cells[j0 * hw + i1] == val and cells[j1 * hw + i0] == val
+                            and cells[j1 * hw + i1] == val)
+                    if same and x > xs:  # so do the cell's pixels after this one
+                        for xx in range(o + x, o + xe):
+                            out[xx] = val
+                        break
+                if same:
+                    out[o + x] = val
+                    continue
+                s = row + x * f.aa
+                if f.prim[s] < 0:
+                    continue
+                d = view_distance(depth[s], near, far)
+                best = np.inf
+                v = val
+                for q in range(4):
+                    c = (j1 if q >> 1 else j0) * hw + (i1 if q & 1 else i0)
+                    e = abs(dist[c] - d)
+                    if e < best:
+                        best = e
+                        v = cells[c]
+                out[o + x] = v

@@ -8,8 +8,8 @@ image) for one image size, so rendering a frame allocates nothing large.
 k_n, ...; see each shader's PARAMS), "background" (rgb), "texture", "height_map" (image
 paths or (h,w,3) arrays), "cubemap" (folder with posx..negz.png or a (6,s,s,3) array),
 "light_position", "light_intensity", "light_radius" (override `light`), "shadows" (bool),
-"shadow_map_size" (texels, default 1024), "ambient_occlusion" (bool), "ao_radius" (metres,
-default 0.1). Unknown keys are ignored.
+"shadow_map_size" (texels, default shadow.map_size: 512 at 800 x 800, 768 at 1920 x 1080),
+"ambient_occlusion" (bool), "ao_radius" (metres, default 0.1). Unknown keys are ignored.
 """
 from __future__ import annotations
 
@@ -22,13 +22,12 @@ from clothjit import njit
 
 from .camera import Camera
 from .occlusion import DEFAULT_RADIUS as AO_RADIUS
-from .occlusion import STEP as AO_STEP
 from .occlusion import KERNEL as AO_KERNEL
 from .occlusion import TURNS as AO_TURNS
-from .occlusion import blur_pass, occlusion_pass, upsample_pass
+from .occlusion import blur_pass, cell_step, occlusion_pass, upsample_pass
 from .shade import Frame, ShaderKey, fragment_stage, uncached_fragment_stage
 from .shaders import get_shader
-from .shadow import (DEFAULT_RADIUS, LEVELS, MAP_SIZE, ShadowMap, shadow_geometry,
+from .shadow import (DEFAULT_RADIUS, ShadowMap, caster_bounds, levels, map_size,
                      visibility_pass)
 from .textures import resolve
 from .visibility import VisibilityBuffer, run_groups
@@ -127,16 +126,17 @@ class Renderer:
         self.view = VisibilityBuffer(self.sw, self.sh)  # the camera's
         self.image = np.empty((self.height, self.width, 3), np.uint8)
         self.va = None
-        self.verts = self.obj_of = self.disp = self.normals = None
+        self.verts = self.obj_of = self.disp = None
         self.casts = np.empty(0, bool)  # per mesh: does it cast shadows (not a plane)
         self.mesh_vertices = np.zeros(1, np.int64)  # mesh i's vertices: [v_i, v_i+1)
         self.mesh_prims = np.zeros(1, np.int64)  # mesh i's primitives: [p_i, p_i+1)
         self.shadow_map = None  # a shadow.ShadowMap once shadows are asked for
         self.acc = np.empty((0, 3))  # per pixel, with meshes of several shaders
         self.vis = _OFF  # per sample, with shadows
+        self.refine = np.empty(0, bool)  # per cell of the look-ups: refined (shadow.py)
         self.frame = None  # the last frame's shade.Frame
-        # with ambient occlusion: per cell of AO_STEP x AO_STEP pixels the raw and filtered
-        # factors and the depth, and the factor of every pixel
+        # with ambient occlusion: per cell of occlusion.cell_step pixels the raw and
+        # filtered factors and the depth, and the factor of every pixel
         self.occ_raw = self.occ_blur = self.occlusion = _OFF
         self.occ_dist = np.empty(0)
         self.threads = None  # None: numba.get_num_threads() (NUMBA_NUM_THREADS)
@@ -250,7 +250,8 @@ class Renderer:
         if clock:
             t2 = clock()
         groups = self.threads or numba.get_num_threads()
-        self.view.draw(self.va, nv, self.verts, npr, camera.view_projection(), groups,
+        vp = camera.view_projection()
+        self.view.draw(self.va, nv, self.verts, npr, vp, groups,
                        lines_aa=self.aa if lines else 0, count_coverage=count_coverage,
                        timings=timings)
         if clock:
@@ -261,7 +262,7 @@ class Renderer:
         if shadows:
             f = self._shadows(f, nv, npr, lp, radius, params, groups)
         if params.get("ambient_occlusion", False) and not lines:
-            f = self._occlusion(f, camera, params, groups)
+            f = self._occlusion(f, camera, vp, params, groups)
         self.frame = f
         if clock:
             t4 = clock()
@@ -284,7 +285,7 @@ class Renderer:
     def _shadows(self, f, nv, npr, lp, radius, params, groups):
         """Frame f with each sample's visibility of the light (shadow.py): a shadow map of
         the meshes that cast shadows (all but planes), then the look-up passes."""
-        size = int(params.get("shadow_map_size", MAP_SIZE))
+        size = int(params.get("shadow_map_size", map_size(self.sw, self.sh)))
         if size < 16:
             raise ValueError(f"shadow_map_size must be >= 16, got {size}")
         if self.shadow_map is None or self.shadow_map.size != size:
@@ -300,39 +301,47 @@ class Renderer:
                  np.concatenate([self.verts[mp[a]:mp[b]] for a, b in runs] or
                                 [np.empty((0, 3), np.int32)]))
         vruns = np.array([(mv[a], mv[b]) for a, b in runs], np.int64).reshape(-1, 2)
-        self.normals = _grow(self.normals, max(npr, 1), (3,), np.float64)
-        bounds = shadow_geometry(self.va, self.verts[:npr], vruns, lp, self.normals)
-        self.shadow_map.build(self.va, nv, verts, bounds if runs else None, lp, radius,
-                              groups)
+        bounds = caster_bounds(self.va, vruns, lp) if runs else None
+        self.shadow_map.build(self.va, nv, verts, bounds, lp, radius, groups)
         m = self.shadow_map
         ns = self.view.prim.shape[0]
+        top = levels(self.sw, self.sh)
+        cell = 1 << top
         if self.vis.shape[0] != ns:
             self.vis = np.empty(ns, np.float32)
-        for level in range(LEVELS, -1, -1):
-            run_groups(visibility_pass, groups, (f, m.lin, m.views, m.tanh, m.near, radius,
-                                                 self.normals, level, self.vis), first=True)
+            self.refine = np.empty(((self.sw + cell - 1) // cell)
+                                   * ((self.sh + cell - 1) // cell), bool)
+        # one call per step, each after the one before in every group; one call in all on
+        # one thread (a call with the frame costs some 40 us)
+        for step in range(top, -1, -1) if groups > 1 else (top,):
+            run_groups(visibility_pass, groups, (f, m.depth, m.tiles, m.views, m.tanh,
+                                                 m.closest, m.zab, radius, top, step,
+                                                 step if groups > 1 else 0, self.refine,
+                                                 self.vis), first=True)
         return f._replace(vis=self.vis)
 
-    def _occlusion(self, f, camera, params, groups):
+    def _occlusion(self, f, camera, vp, params, groups):
         """Frame f with its pixels' ambient occlusion factors (occlusion.py)."""
         radius = float(params.get("ao_radius", AO_RADIUS))
         if not (math.isfinite(radius) and radius > 0.0):
             raise ValueError(f"ao_radius must be a number > 0, got {radius!r}")
+        step = cell_step(self.width, self.height)
         n = self.width * self.height
-        nh = ((self.width + AO_STEP - 1) // AO_STEP) * ((self.height + AO_STEP - 1) // AO_STEP)
+        nh = ((self.width + step - 1) // step) * ((self.height + step - 1) // step)
         if self.occlusion.shape[0] != n:
             self.occ_raw = np.empty(nh, np.float32)
             self.occ_blur = np.empty(nh, np.float32)
             self.occ_dist = np.empty(nh)
             self.occlusion = np.empty(n, np.float32)
         depth = self.view.depth
-        run_groups(occlusion_pass, groups, (f, camera.view_projection(), camera.near,
-                                            camera.far, radius, AO_KERNEL, AO_TURNS, depth,
-                                            self.occ_raw, self.occ_dist), first=True)
-        run_groups(blur_pass, groups, (f, radius, self.occ_raw, self.occ_dist,
+        run_groups(occlusion_pass, groups, (f, step, vp, camera.near, camera.far, radius,
+                                            AO_KERNEL, AO_TURNS, depth, self.occ_raw,
+                                            self.occ_dist), first=True)
+        run_groups(blur_pass, groups, (f, step, radius, self.occ_raw, self.occ_dist,
                                        self.occ_blur), first=True)
-        run_groups(upsample_pass, groups, (f, camera.near, camera.far, depth, self.occ_dist,
-                                           self.occ_blur, self.occlusion), first=True)
+        run_groups(upsample_pass, groups, (f, step, camera.near, camera.far, depth,
+                                           self.occ_dist, self.occ_blur, self.occlusion),
+                   first=True)
         return f._replace(occ=self.occlusion)
 
     def light_visibility(self) -> np.ndarray:

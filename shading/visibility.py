@@ -23,13 +23,14 @@ def view_distance(z, near, far):
 class VisibilityBuffer:
     """Depth (window z), primitive id and barycentrics of every sample of a W x H grid,
     and the per-primitive and per-vertex scratch the rasteriser needs (grown on demand,
-    never shrunk: drawing a frame allocates nothing large)."""
+    never shrunk: drawing a frame allocates nothing large). `depth`: the depth buffer to
+    draw into (float64 (W * H,), a view of the caller's array), else one of its own."""
 
-    def __init__(self, width: int, height: int):
+    def __init__(self, width: int, height: int, depth: np.ndarray | None = None):
         self.width, self.height = int(width), int(height)
         ns = self.width * self.height
         # rowlo/rowhi = the whole row: the first frame clears all
-        self.depth = np.full(ns, np.inf)
+        self.depth = np.full(ns, np.inf) if depth is None else depth
         self.prim = np.full(ns, -1, np.int32)
         self.bary = np.zeros((ns, 2), np.float32)
         self.rowlo = np.zeros(self.height, np.int32)

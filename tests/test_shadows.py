@@ -209,11 +209,13 @@ def test_hard_shadows_agree_with_ray_casting(among):
     assert agree.mean() >= 0.99
 
 
-def test_every_covered_sample_gets_its_visibility():
-    """An image whose sides are not multiples of the look-ups' coarsest grid: every covered
-    sample is written, the same values again over a buffer of NaN."""
+@pytest.mark.parametrize("size", [(157, 118), (1003, 1001)])
+def test_every_covered_sample_gets_its_visibility(size):
+    """Images whose sides are not multiples of the look-ups' cells (4 samples a side, 8 from
+    shadow.LARGE_FRAME samples on): every covered sample is written, the same values again
+    over a buffer of NaN."""
     meshes, _, lp = random_scene(11)
-    cam = Camera((0.35, 1.5, 1.75), (0.0, 0.15, 0.0), width=157, height=118)
+    cam = Camera((0.35, 1.5, 1.75), (0.0, 0.15, 0.0), width=size[0], height=size[1])
     r = Renderer(cam.width, cam.height)
     r.render(meshes, cam, light(lp), "diffuse", {"shadows": True})
     first = r.light_visibility()
@@ -353,14 +355,16 @@ def test_shadows_off_is_the_old_image():
     assert a.tobytes() != c.tobytes()
 
 
-def test_ambient_occlusion_darkens_contact_only_and_scales_the_ambient_term():
+@pytest.mark.parametrize("size", [(160, 120), (800, 750)])
+def test_ambient_occlusion_darkens_contact_only_and_scales_the_ambient_term(size):
     """A sphere resting on a plane: the occlusion factor is 1 on the open plane far from
     the sphere and below 1 at the contact ring; with the light off (I = 0) and no
-    specular, each pixel is exactly k_a I_a times its factor (the ambient term alone)."""
+    specular, each pixel is exactly k_a I_a times its factor (the ambient term alone).
+    Cells of 4 and of 6 pixels (occlusion.cell_step)."""
     rho = 0.2
     meshes = [shading.sphere_mesh((0.0, rho, 0.0), rho, scale=1.0),
               shading.plane_mesh((0.0, 0.0, 0.0), (0.0, 1.0, 0.0))]
-    cam = Camera(eye=(0.0, 1.2, 1.6), target=(0.0, 0.1, 0.0), width=160, height=120)
+    cam = Camera(eye=(0.0, 1.2, 1.6), target=(0.0, 0.1, 0.0), width=size[0], height=size[1])
     r = Renderer(cam.width, cam.height)
     dark = types.SimpleNamespace(position=(0.0, 2.0, 0.0), intensity=(0.0, 0.0, 0.0))
     img = r.render(meshes, cam, dark, "phong", {"ambient_occlusion": True, "k_s": 0.0,
