@@ -13,6 +13,9 @@ How it is made fast without changing a bit:
 - a point's candidates are then one contiguous run: their squared distances come from a
   vectorised loop, and only those below a slightly raised threshold take the exact test on
   the square root, as the course code computes it.
+- a point reads and moves only its own box's members, so the boxes are pushed in member
+  order (box by box), and from PARALLEL_POINTS points in runs of whole boxes on the threads:
+  the same bits as the course's row-major order on any thread count.
 """
 from __future__ import annotations
 
