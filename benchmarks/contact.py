@@ -21,7 +21,8 @@ colliders counts twice): `inside`, free points strictly inside a solid collider 
 box, solid mesh), and `edges`, cloth edges through a solid collider, across a one-sided
 mesh or across a plane; `y mid`, the median height of the cloth's points in metres (where
 the cloth is: on the rising sphere, carried or left behind); and the simulate time so far
-(sim.advance only: the checker's time is printed apart). A flat cloth's nearest such pairs
+(sim.advance only, from the second frame on: the first loads or compiles the kernels, and
+its time and the checker's are printed apart). A flat cloth's nearest such pairs
 are its own neighbours in the plane (the grid spacing / thickness, or its diagonal's half):
 the frame-0 figure is that floor. The summary line gives, per scene, the crossing and
 separation figures and the collider columns' largest value (and its frame), their total over
@@ -369,7 +370,7 @@ def run_scene(name: str, mode: str, seconds: float | None, every: int | None,
         print(f"   {note}")
     print(f"{'frame':>6} {'time':>6} {'crossings':>9} {'touching':>8} "
           f"{'sep/thick':>9} {'inside':>6} {'edges':>6} {'y mid':>6} {'sim s':>7} {'check s':>7}")
-    rows, sim_s, check_s, error = [], 0.0, 0.0, ""
+    rows, sim_s, first_s, check_s, error = [], 0.0, 0.0, 0.0, ""
 
     def check(frame: int) -> None:
         nonlocal check_s
@@ -397,7 +398,10 @@ def run_scene(name: str, mode: str, seconds: float | None, every: int | None,
             error = f"diverged at frame {frame}: {e}"
             print(f"   {error}")
             break
-        sim_s += time.perf_counter() - t0
+        if frame == 1:
+            first_s = time.perf_counter() - t0
+        else:
+            sim_s += time.perf_counter() - t0
         if frame % every == 0 or frame == frames or frame in dense:
             check(frame)
 
@@ -417,8 +421,8 @@ def run_scene(name: str, mode: str, seconds: float | None, every: int | None,
                f"max {max(ins)} (at frame {rows[ins.index(max(ins))][0]}) total {sum(ins)}, "
                f"edges through max {max(thr)} (at frame {rows[thr.index(max(thr))][0]}) total "
                f"{sum(thr)}, {len(hit)} frames with either: {ranges(hit)}; y mid at frame "
-               f"{rows[-1][0]} {rows[-1][6]:.3f} m; simulate {sim_s:.2f} s, "
-               f"checker {check_s:.2f} s" + (f"; {error}" if error else ""))
+               f"{rows[-1][0]} {rows[-1][6]:.3f} m; simulate {sim_s:.2f} s (the first "
+               f"frame, loading the kernels, {first_s:.2f} s apart), checker {check_s:.2f} s" + (f"; {error}" if error else ""))
     print(summary)
     return {"name": name, "mode": mode, "ran": ran, "sim_s": sim_s, "summary": summary,
             "max": max(counts), "crossed": len(crossed), "inside_max": max(ins),

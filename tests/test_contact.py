@@ -236,25 +236,30 @@ def _folded_cloth(n: int, h: float, seed: int):
     return rest, np.ascontiguousarray(x), tris
 
 
-def test_the_candidate_list_is_every_pair_within_twice_the_thickness_once():
-    """The broad phase against brute force (the checker's distances, every pair): the pairs
-    within 2 h that are not neighbours at rest, each once. A 20 x 20 fold whose hash puts
-    two cells of one box in one bucket (which once listed their pairs twice)."""
+def _listed_against_brute_force(h: float, skins=None):
+    """A 20 x 20 fold's candidate list made afresh (with these skins, in h, else the first
+    list's) and the pairs that brute force (the checker's distances, every pair) finds
+    within h plus the pair's skins (each primitive's the largest of its points') and not
+    within h at rest: (listed rows, expected set)."""
     from pipeline.physics import contact
 
-    h = 0.008
     rest, x, tris = _folded_cloth(20, h, 0)
     n = x.shape[1]
     c = pack_contact(h, 0.3, tris, rest, np.ones(n), np.zeros(n, np.uint8))
-    contact._round(x, x, c, c.visit, contact.RobustContact(*c[:-1], None), 0)
+    c = c._replace(listed=np.zeros((256 * n, 5), np.int64), listed_gap=np.zeros(256 * n))
+    if skins is not None:
+        c.anchor[3] = skins * h
+    skin = c.anchor[3].copy()
+    contact._round(x, x, contact.RobustContact(*c[:-1], None), c.visit, 0)
+    assert c.count[0] >= 0  # it fitted
     listed = [tuple(int(v) for v in row) for row in c.listed[:c.count[0]]]
-    assert len(listed) == len(set(listed))
     points, at_rest = x.T, rest.T
     expected = set()
     for p in range(n):
         tri = tris[~np.any(tris == p, axis=1)]
-        near = crossings.point_triangle_distance(
-            np.repeat(points[p][None], len(tri), 0), *(points[tri[:, j]] for j in range(3))) <= 2 * h
+        reach = h + skin[p] + skin[tri].max(axis=1)
+        near = crossings.point_triangle_distance(np.repeat(points[p][None], len(tri), 0),
+                                                 *(points[tri[:, j]] for j in range(3))) <= reach
         apart = ~(crossings.point_triangle_distance(
             np.repeat(at_rest[p][None], len(tri), 0), *(at_rest[tri[:, j]] for j in range(3))) < h)
         expected |= {(p, *map(int, t), 0) for t in tri[near & apart]}
@@ -262,12 +267,33 @@ def test_the_candidate_list_is_every_pair_within_twice_the_thickness_once():
     for i, (a, b) in enumerate(edges):
         other = edges[i + 1:]
         other = other[~np.any((other == a) | (other == b), axis=1)]
+        reach = h + max(skin[a], skin[b]) + skin[other].max(axis=1)
         ends = [np.repeat(q[[a, b]][:, None], len(other), 1) for q in (points, at_rest)]
         near = crossings.segment_segment_distance(*ends[0], points[other[:, 0]],
-                                                  points[other[:, 1]]) <= 2 * h
+                                                  points[other[:, 1]]) <= reach
         apart = ~(crossings.segment_segment_distance(*ends[1], at_rest[other[:, 0]],
                                                      at_rest[other[:, 1]]) < h)
         expected |= {(int(a), int(b), *map(int, e), 1) for e in other[near & apart]}
+    return listed, expected
+
+
+def test_the_candidate_list_is_every_pair_within_twice_the_thickness_once():
+    """The first list (every point's skin half the thickness): the pairs within 2 h that
+    are not neighbours at rest, each once."""
+    listed, expected = _listed_against_brute_force(0.008)
+    assert len(listed) == len(set(listed))
+    assert set(listed) == expected
+
+
+def test_a_list_with_a_skin_for_every_point_has_every_pair_within_reach_once():
+    """Skins from an eighth of the thickness to the thickness, at random: the pairs within h
+    plus their skins, each once (the grid's cells looked at from each point and edge grow
+    with the skins; an edge meets another from one of them only)."""
+    from pipeline.physics import contact
+
+    skins = np.random.default_rng(1).uniform(contact.SKIN_MIN, contact.SKIN_MAX, 400)
+    listed, expected = _listed_against_brute_force(0.008, skins)
+    assert len(listed) == len(set(listed))
     assert set(listed) == expected
 
 

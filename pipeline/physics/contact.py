@@ -17,12 +17,19 @@ rest:
    every point back at x0; a pair that meets with none of its points free (pins moving
    into each other) is counted as unresolvable.
 
-Pairs come from a candidate list of those within (1 + LIST_MARGIN) h, made on a spatial
-hash of the primitives' boxes (cells the size of the triangles' mean swept box, each pair
-found once, in its canonical cell) and made again only when some point has moved
-LIST_MARGIN h / 2 from where it was made; a step that moves further, or whose list did
-not fit (Simulation then doubles its room: with_room), visits the hash directly. Everything is serial and in a fixed order: results are bit-for-bit the same on
-every run and thread count.
+Pairs come from a candidate list: every pair within h plus the skins of its two primitives
+at the list's making (a point's skin: how far it may move before the list is made again, a
+primitive's the largest of its points'), made on a grid of the primitives' boxes
+(_make_list) and made again when a point has moved further than its skin from where it was
+(less the cloth's mean move). The skins follow the points: each is what its point moved
+while the last list held, at that rate over SKIN_CALLS calls, so that a still cloth lists
+few pairs and a fast point does not make the list again every step. The list is kept in
+order of its pairs' slack (their distance beyond h over their skins): a visit reads only the
+pairs whose slack the moves since may have used up. A step that moves further, or whose
+list did not fit (Simulation then doubles its room: with_room), visits a spatial hash of
+the primitives' swept boxes directly (each pair found once, in its canonical cell).
+Everything is serial and in a fixed order: results are bit-for-bit the same on every run
+and thread count.
 """
 from __future__ import annotations
 
@@ -41,13 +48,21 @@ from .ccd import (edge_edge_distance, edge_edge_impact, orient, point_triangle_d
 from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 
 CCD_ROUNDS = 4
-# the candidate list: every pair within (1 + LIST_MARGIN) h at its making, good while no
-# point has moved LIST_MARGIN h / 2 from there (then no pair outside can have come within h,
-# nor meet on the straight paths of a step inside that range)
-LIST_MARGIN = 1.0
+# the candidate list: every pair within h plus its skins at its making, good while no point
+# has moved further than its skin from there (then no pair outside can have come within h,
+# nor meet on the straight paths of a step inside that range). A point's skin, in h: SKIN
+# in the first list, then its move while the last list held at that rate over SKIN_CALLS
+# calls of robust_contact, at least SKIN_SHRINK times its last (a point that moved back and
+# forth keeps some), within [SKIN_MIN, SKIN_MAX]
+SKIN, SKIN_MIN, SKIN_MAX = 0.5, 0.125, 1.0
+SKIN_CALLS, SKIN_SHRINK = 32.0, 0.75
+LIST_CELL = 0.5  # the list's grid cells, in the triangles' mean box side
+GAP_BINS = 16  # the list is kept in order of these bins of its pairs' slack, in [0, 1]
 LISTED_PER_POINT = 64  # room in the list at first; with_room doubles it when it overflows
 MAX_LISTED_PER_POINT = 1024  # beyond this, the steps visit the hash directly
+BATCH = 1024  # _visit hands the pairs it finds on the hash to _listed this many at a time
 OVERFLOWED = -2  # RobustContact.count: the list made at `anchor` did not fit
+BINS = 3  # RobustContact.count: where the slack bins' starts begin
 IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
 TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
 STATS = 14  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
@@ -69,19 +84,23 @@ class RobustContact(NamedTuple):
     pushes: np.ndarray  # (N,) scratch: corrections counted
     frozen: np.ndarray  # (N,) uint8 scratch
     box: np.ndarray  # (6, max(T, E)) scratch: swept boxes
-    bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash
+    bucket_start: np.ndarray  # (H + 1,) int64 scratch of the hash (_grid: of the grid)
     bucket_work: np.ndarray  # (2, H) int64 scratch of _build: each bucket's fill, last box
+    #                          (_grid: each cell's fill, each box's place)
     entries: np.ndarray  # (cap,) int64 scratch of the hash: the primitives, by bucket
     entry_box: np.ndarray  # (9, cap) scratch: their boxes in the same order (read in turn),
-    #                        then the cell of each box's lower corner
+    #                        then the cell of each box's lower corner (_grid: the boxes)
     roots: np.ndarray  # (4,) scratch of the cubic's roots
-    ids: np.ndarray  # (5,) int64 scratch: the pair _visit hands to _pair
+    ids: np.ndarray  # (BATCH, 5) int64 scratch: the pairs _visit finds on the hash, in
+    #                  turns; _make_list's, one at a time
     listed: np.ndarray  # (cap, 5) int64: the candidate pairs (4 points, kind) near at `anchor`
     listed_gap: np.ndarray  # (cap,) their distance at `anchor`
-    count: np.ndarray  # (2,) int64 pairs listed; -1: no valid list; OVERFLOWED: count[1]
-    #                    pairs at `anchor`, more than its room (Simulation makes room:
-    #                    with_room)
-    anchor: np.ndarray  # (3, N) the positions the list was made at
+    count: np.ndarray  # (BINS + GAP_BINS + 1,) int64 pairs listed; -1: no valid list;
+    #                    OVERFLOWED: count[1] pairs at `anchor`, more than its room
+    #                    (Simulation makes room: with_room); count[2]: stats[6] (the calls)
+    #                    when it was made; from count[BINS]: where each slack bin starts
+    anchor: np.ndarray  # (4, N) where each point was when the list was made, and its skin
+    #                     (row 3, see SKIN)
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
@@ -114,6 +133,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     while size < 4 * max(len(tris), len(edges)) * self_on:
         size <<= 1
     inv = np.where(pinned != 0, 0.0, 1.0 / mass)
+    room = max(LISTED_PER_POINT * m, BATCH * self_on)  # _listed reads a batch's gaps too
     stats = np.zeros(STATS)
     stats[5] = math.inf
     stats[-1] = -1.0  # no pinned point forced into a collider yet
@@ -123,10 +143,10 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((6, max(len(tris), len(edges)) if self_on else 0)),
                       np.zeros(size + 1, np.int64), np.zeros((2, size), np.int64),
                       np.zeros(4 * size, np.int64),
-                      np.zeros((9, 4 * size)), np.zeros(4), np.zeros(5, np.int64),
-                      np.zeros((LISTED_PER_POINT * m, 5), np.int64),
-                      np.zeros(LISTED_PER_POINT * m), np.array([-1, 0], np.int64),
-                      np.zeros((3, m)), np.zeros(m), stats, bool(self_on))
+                      np.zeros((9, 4 * size)), np.zeros(4), np.zeros((BATCH, 5), np.int64),
+                      np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
+                      np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
+                      np.zeros(m), stats, bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
     c = c._replace(meshes=meshes, mesh_pass=passes[0], solid_stage=passes[1],
@@ -138,14 +158,21 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
 def with_room(c: RobustContact) -> RobustContact:
     """c with room in its candidate list for 1.25 times the pairs that overflowed it (at
     least twice its room, at most MAX_LISTED_PER_POINT a point), else c itself: the list is
-    made again at the next step, the hash no longer visited every step (an 80x80 cloth
-    lists about 73 pairs a point at rest)."""
+    made again at the next step, the hash no longer visited every step (the first list of
+    an 80x80 cloth at rest holds about 73 pairs a point)."""
     n = c.rest.shape[1]
     if c.count[0] != OVERFLOWED or c.listed.shape[0] >= MAX_LISTED_PER_POINT * n:
         return c
     cap = min(max(2 * c.listed.shape[0], int(1.25 * c.count[1])), MAX_LISTED_PER_POINT * n)
     return c._replace(listed=np.zeros((cap, 5), np.int64), listed_gap=np.zeros(cap),
-                      count=np.array([-1, 0], np.int64))
+                      count=_no_list())
+
+
+def _no_list() -> np.ndarray:
+    """RobustContact.count with no valid list."""
+    count = np.zeros(BINS + GAP_BINS + 1, np.int64)
+    count[0] = -1
+    return count
 
 
 def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
@@ -199,20 +226,25 @@ def _hash(ix, iy, iz, mask):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _boxes(x0, x1, prims, margin, box):
-    """box[:, k] = the swept box of primitive k (its points at x0 and x1), grown by margin;
-    returns the mean of the boxes' largest sides."""
+def _boxes(x0, x1, prims, margin, skin, grow, box):
+    """box[:, k] = the swept box of primitive k (its points at x0 and x1), grown by margin
+    plus `grow` times the largest skin of its points; returns the mean of the boxes' largest
+    sides."""
     total = 0.0
     for k in range(prims.shape[0]):
         side = 0.0
+        out = 0.0
+        for j in range(prims.shape[1]):
+            out = max(out, skin[prims[k, j]])
+        out = margin + grow * out
         for a in range(3):
             lo, hi = math.inf, -math.inf
             for j in range(prims.shape[1]):
                 i = prims[k, j]
                 lo = min(lo, x0[a, i], x1[a, i])
                 hi = max(hi, x0[a, i], x1[a, i])
-            box[a, k], box[3 + a, k] = lo - margin, hi + margin
-            side = max(side, hi - lo + 2.0 * margin)
+            box[a, k], box[3 + a, k] = lo - out, hi + out
+            side = max(side, hi - lo + 2.0 * out)
         total += side
     return total / max(prims.shape[0], 1)
 
@@ -289,87 +321,250 @@ def _rest_close(c, ids):
       pointer=True)
 def _visit(x0, x1, c, mode, cell):
     """Visit every candidate pair once: mode 0 CCD responses, else proximity at x1; 1 CCD
-    responses only; 2 CCD detection for the fail-safe (freezing). Returns the pairs acted
-    on. The triangles' and edges' boxes grow by the margin (h for proximity), the points'
-    not: a box pair overlaps where the primitives may be within the margin. Without numba's
-    reference counts (`_nrt=False`, as _listed: nothing here allocates, the pair is
-    scratch): at every pair numba counted the references to the RobustContact's arrays
-    that the inlined _pair takes, which tripled the cost of robust contact."""
+    responses only; 2 CCD detection for the fail-safe (freezing); 3 make the candidate list
+    at x1 (_make_list); 4-6 modes 0-2 over it (_listed; `cell`: the drift). Returns the
+    pairs acted on. On the hash, the triangles' and edges' boxes grow by the margin (h for
+    proximity), the points' not: a box pair overlaps where the primitives may be within the
+    margin; its pairs go to _listed in batches. Without numba's reference counts
+    (`_nrt=False`, as _listed: nothing here allocates, the pairs are scratch): at every
+    pair numba counted the references to the RobustContact's arrays that the inlined _pair
+    takes, which tripled the cost of robust contact."""
     if mode >= 4:
-        return _listed(x0, x1, c, mode - 4, cell)
-    tris, edges = c.triangles, c.edges
-    n = x0.shape[1]
-    acted = 0
+        end = c.count[BINS + min(int((cell + 1e-9) * GAP_BINS), GAP_BINS - 1) + 1]
+        return _listed(x0, x1, c, mode - 4, c.listed, end, 0.0)
+    if mode == 3:
+        return _make_list(x1, c)
+    tris, edges, box, eb, batch = c.triangles, c.edges, c.box, c.entry_box, c.ids
     h = c.thickness
-
-    margin = (h if mode == 0 else (1.0 + LIST_MARGIN) * h if mode == 3 else h * TOLERANCE)
-    # point-triangle: hash the triangles, query each point's swept box (cells doubled
-    # until the entries fit)
-    _boxes(x0, x1, tris, margin, c.box)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
-                         c.entry_box):
-        cell *= 2.0
+    acted = 0
+    count = 0
+    margin = h if mode == 0 else h * TOLERANCE
     mask = c.bucket_start.shape[0] - 2
-    ids = c.ids
-    eb = c.entry_box
-    for p in range(n):
-        plo = (min(x0[0, p], x1[0, p]), min(x0[1, p], x1[1, p]), min(x0[2, p], x1[2, p]))
-        phi = (max(x0[0, p], x1[0, p]), max(x0[1, p], x1[1, p]), max(x0[2, p], x1[2, p]))
-        q0, q1, q2 = math.floor(plo[0] / cell), math.floor(plo[1] / cell), math.floor(plo[2] / cell)
-        for ix in range(q0, math.floor(phi[0] / cell) + 1):
-            for iy in range(q1, math.floor(phi[1] / cell) + 1):
-                for iz in range(q2, math.floor(phi[2] / cell) + 1):
-                    b = _hash(ix, iy, iz, mask)
-                    for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
-                        if (eb[0, e] > phi[0] or eb[3, e] < plo[0] or eb[1, e] > phi[1]
-                                or eb[4, e] < plo[1] or eb[2, e] > phi[2] or eb[5, e] < plo[2]):
+    # point-triangle (kind 0): hash the triangles, query each point's swept box; edge-edge
+    # (1): hash the edges, query each edge's swept box against later edges (cells doubled
+    # until the entries fit)
+    for kind in range(2):
+        prims = tris if kind == 0 else edges
+        _boxes(x0, x1, prims, margin / (1.0 + kind), c.anchor[3], 0.0, box)
+        while not _build(box, prims.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
+                             eb):
+            cell *= 2.0
+        for q in range(x0.shape[1] if kind == 0 else edges.shape[0]):
+            if kind == 0:
+                lo = (min(x0[0, q], x1[0, q]), min(x0[1, q], x1[1, q]), min(x0[2, q], x1[2, q]))
+                hi = (max(x0[0, q], x1[0, q]), max(x0[1, q], x1[1, q]), max(x0[2, q], x1[2, q]))
+            else:
+                lo, hi = (box[0, q], box[1, q], box[2, q]), (box[3, q], box[4, q], box[5, q])
+            q0, q1, q2 = (math.floor(lo[0] / cell), math.floor(lo[1] / cell),
+                          math.floor(lo[2] / cell))
+            for ix in range(q0, math.floor(hi[0] / cell) + 1):
+                for iy in range(q1, math.floor(hi[1] / cell) + 1):
+                    for iz in range(q2, math.floor(hi[2] / cell) + 1):
+                        b = _hash(ix, iy, iz, mask)
+                        for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
+                            k = c.entries[e]
+                            if kind == 1 and k <= q:
+                                continue
+                            if (eb[0, e] > hi[0] or eb[3, e] < lo[0] or eb[1, e] > hi[1]
+                                    or eb[4, e] < lo[1] or eb[2, e] > hi[2] or eb[5, e] < lo[2]):
+                                continue
+                            # the canonical cell: that of the larger of the two lower corners
+                            # (floor(max(a, b) / cell) = max of the floors: both monotone)
+                            if (max(eb[6, e], q0) != ix or max(eb[7, e], q1) != iy
+                                    or max(eb[8, e], q2) != iz):
+                                continue
+                            if kind == 0:
+                                if _shares(tris[k], q):
+                                    continue
+                                ids = (q, tris[k, 0], tris[k, 1], tris[k, 2])
+                            else:
+                                ids = (edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1])
+                                if (ids[0] == ids[2] or ids[0] == ids[3] or ids[1] == ids[2]
+                                        or ids[1] == ids[3]):
+                                    continue
+                            for j in range(4):
+                                batch[count, j] = ids[j]
+                            batch[count, 4] = kind
+                            count += 1
+                            if count == batch.shape[0]:
+                                acted += _listed(x0, x1, c, mode, batch, count, math.inf)
+                                count = 0
+    return acted + _listed(x0, x1, c, mode, batch, count, math.inf)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _skins(skin, ids):
+    """The pair's skins: the largest of each primitive's points'."""
+    if ids[4] == 0:
+        return skin[ids[0]] + max(skin[ids[1]], skin[ids[2]], skin[ids[3]])
+    return max(skin[ids[0]], skin[ids[1]]) + max(skin[ids[2]], skin[ids[3]])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _slack_bin(listed, gap, skin, h, k):
+    """The bin of listed pair k's slack: its distance beyond h at the making over its skins
+    (a pair's points move no further than f times their skins: the pairs in the bins past
+    f GAP_BINS stay further than h apart)."""
+    slack = (gap[k] - h) / _skins(skin, listed[k])
+    return min(int(max(slack, 0.0) * GAP_BINS), GAP_BINS - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _by_gap(listed, gap, count, start, fill, skin, h):
+    """Order the `count` listed pairs by slack bin, in place (a fixed order of swaps: the
+    same every run); start: where each bin starts; fill: scratch."""
+    start[:] = 0
+    for k in range(count):
+        start[_slack_bin(listed, gap, skin, h, k) + 1] += 1
+    for b in range(GAP_BINS):
+        start[b + 1] += start[b]
+        fill[b] = start[b]
+    for b in range(GAP_BINS):
+        while fill[b] < start[b + 1]:
+            k = fill[b]
+            d = _slack_bin(listed, gap, skin, h, k)
+            if d == b:
+                fill[b] += 1
+                continue
+            j = fill[d]  # k goes to bin d's next place, what was there to k
+            fill[d] += 1
+            gap[k], gap[j] = gap[j], gap[k]
+            for i in range(5):
+                listed[k, i], listed[j, i] = listed[j, i], listed[k, i]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _grid(box, count, cell, start, fill, slot, entries, eb):
+    """Sort `count` boxes into a grid of cells of side `cell` (coarser where it would have
+    more cells than `fill` holds), each box once, in the cell of its lower corner, in the
+    order of the cells (along x, then y, then z) and within one in that of the boxes: cell
+    q's boxes are entries[start[q]:start[q + 1]], their boxes in eb's rows 0-5 in the same
+    order, box k at slot[k]. Returns the grid: its lower corner (3), cell, the largest box
+    sides (3; a box that overlaps another has its lower corner at most that far below the
+    other's) and the cells along each axis (3)."""
+    lo0 = lo1 = lo2 = math.inf
+    hi0 = hi1 = hi2 = -math.inf
+    s0 = s1 = s2 = 0.0
+    for k in range(count):
+        lo0, lo1, lo2 = min(lo0, box[0, k]), min(lo1, box[1, k]), min(lo2, box[2, k])
+        hi0, hi1, hi2 = max(hi0, box[0, k]), max(hi1, box[1, k]), max(hi2, box[2, k])
+        s0, s1, s2 = (max(s0, box[3, k] - box[0, k]), max(s1, box[4, k] - box[1, k]),
+                      max(s2, box[5, k] - box[2, k]))
+    while True:
+        n0, n1, n2 = (math.floor((hi0 - lo0) / cell) + 1.0, math.floor((hi1 - lo1) / cell) + 1.0,
+                      math.floor((hi2 - lo2) / cell) + 1.0)
+        if n0 * n1 * n2 <= fill.shape[0]:
+            break
+        cell *= 1.25
+    # the sides with a rounding's margin: a query computes its lowest cell from them
+    pad = 1.0 + 1e-9
+    g = (lo0, lo1, lo2, cell, s0 * pad, s1 * pad, s2 * pad, n0, n1, n2)
+    cells = int(n0 * n1 * n2)
+    start[:cells + 1] = 0
+    for k in range(count):
+        start[_cell_of(g, box, k) + 1] += 1
+    for q in range(cells):
+        start[q + 1] += start[q]
+        fill[q] = start[q]
+    for k in range(count):
+        q = _cell_of(g, box, k)
+        e = fill[q]
+        fill[q] += 1
+        entries[e] = k
+        slot[k] = e
+        for a in range(6):
+            eb[a, e] = box[a, k]
+    return g
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _axis_cell(g, a, v):
+    """The cell along axis a of the grid g (_grid) that holds the coordinate v."""
+    return min(math.floor((v - g[a]) / g[3]), int(g[7 + a]) - 1)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _cell_of(g, box, k):
+    """The grid cell of box k's lower corner."""
+    return (_axis_cell(g, 0, box[0, k])
+            + int(g[7]) * (_axis_cell(g, 1, box[1, k]) + int(g[8]) * _axis_cell(g, 2, box[2, k])))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _span(g, a, lo, hi):
+    """The cells along axis a of the grid g that may hold the lower corner of a box
+    overlapping [lo, hi] on that axis."""
+    return max(math.floor((lo - g[4 + a] - g[a]) / g[3]), 0), _axis_cell(g, a, hi)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
+def _make_list(x, c):
+    """List every pair within h plus its skins at x that are not neighbours at rest (in
+    order of slack: _by_gap), on grids of the triangles' and the edges' boxes grown by h
+    and h / 2 plus their skins (_grid; each box once, in its cell: cheaper than the hash,
+    whose boxes lie in every cell they meet and whose pairs are met in every cell both
+    do): a point looks at the triangles in the cells that may hold the lower corner of a
+    box meeting its own, an edge likewise at the edges from its own place in the grid on
+    (a pair met from one of its edges only). The steps' own visits keep the hash: a fast
+    point's swept box can be far larger than the others, and on the grid every query
+    would look that far below its own box. Returns 0."""
+    tris, edges, box, skin = c.triangles, c.edges, c.box, c.anchor[3]
+    h = c.thickness
+    ids, eb, start, fill, slot = (c.ids[0], c.entry_box, c.bucket_start, c.bucket_work[0],
+                                  c.bucket_work[1])
+    c.count[0] = 0
+    cell = LIST_CELL * _boxes(x, x, tris, h, skin, 1.0, box)
+    for kind in range(2):  # point-triangle, edge-edge (one loop: it compiles once)
+        prims = tris if kind == 0 else edges
+        if kind == 1:
+            _boxes(x, x, edges, 0.5 * h, skin, 1.0, box)
+        g = _grid(box, prims.shape[0], cell, start, fill, slot, c.entries, eb)
+        n0, n1 = int(g[7]), int(g[8])
+        for q in range(x.shape[1] if kind == 0 else edges.shape[0]):
+            if kind == 0:
+                lo = (x[0, q] - skin[q], x[1, q] - skin[q], x[2, q] - skin[q])
+                hi = (x[0, q] + skin[q], x[1, q] + skin[q], x[2, q] + skin[q])
+            else:
+                lo, hi = (box[0, q], box[1, q], box[2, q]), (box[3, q], box[4, q], box[5, q])
+            a0, b0 = _span(g, 0, lo[0], hi[0])
+            a1, b1 = _span(g, 1, lo[1], hi[1])
+            a2, b2 = _span(g, 2, lo[2], hi[2])
+            # an edge looks from its own place in the grid on: the edges before it meet it
+            own, oy, oz = slot[q], _axis_cell(g, 1, lo[1]), _axis_cell(g, 2, lo[2])
+            for iz in range(a2 if kind == 0 else oz, b2 + 1):
+                for iy in range(a1 if kind == 0 or iz > oz else oy, b1 + 1):
+                    row = n0 * (iy + n1 * iz)
+                    first = own + 1 if kind == 1 and iz == oz and iy == oy else start[row + a0]
+                    for e in range(first, start[row + b0 + 1]):
+                        # one branch for all the tests (`&`, not `or`): their outcomes are
+                        # unpredictable, and each mispredicted branch costs more than a test
+                        if not ((eb[0, e] <= hi[0]) & (eb[3, e] >= lo[0]) & (eb[1, e] <= hi[1])
+                                & (eb[4, e] >= lo[1]) & (eb[2, e] <= hi[2]) & (eb[5, e] >= lo[2])):
                             continue
-                        # the canonical cell: that of the larger of the two lower corners
-                        # (floor(max(a, b) / cell) = max of the floors: both monotone)
-                        if (max(eb[6, e], q0) != ix or max(eb[7, e], q1) != iy
-                                or max(eb[8, e], q2) != iz):
-                            continue
-                        t = c.entries[e]
-                        if _shares(tris[t], p):
-                            continue
-                        ids[0], ids[1], ids[2], ids[3], ids[4] = p, tris[t, 0], tris[t, 1], tris[t, 2], 0
-                        acted += _collect(x1, c, ids) if mode == 3 else _pair(x0, x1, c, mode, ids)
-    # edge-edge: hash the edges, query each edge's swept box against later edges
-    _boxes(x0, x1, edges, 0.5 * margin, c.box)
-    while not _build(c.box, edges.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
-                         c.entry_box):
-        cell *= 2.0
-    box = c.box
-    for e1 in range(edges.shape[0]):
-        a, b2 = edges[e1, 0], edges[e1, 1]
-        lo0, lo1, lo2, hi0, hi1, hi2 = box[0, e1], box[1, e1], box[2, e1], box[3, e1], box[4, e1], box[5, e1]
-        q0, q1, q2 = math.floor(lo0 / cell), math.floor(lo1 / cell), math.floor(lo2 / cell)
-        for ix in range(q0, math.floor(hi0 / cell) + 1):
-            for iy in range(q1, math.floor(hi1 / cell) + 1):
-                for iz in range(q2, math.floor(hi2 / cell) + 1):
-                    bk = _hash(ix, iy, iz, mask)
-                    for e in range(c.bucket_start[bk], c.bucket_start[bk + 1]):
-                        e2 = c.entries[e]
-                        if e2 <= e1:
-                            continue
-                        if (eb[0, e] > hi0 or eb[3, e] < lo0 or eb[1, e] > hi1
-                                or eb[4, e] < lo1 or eb[2, e] > hi2 or eb[5, e] < lo2):
-                            continue
-                        if max(eb[6, e], q0) != ix or max(eb[7, e], q1) != iy or max(eb[8, e], q2) != iz:
-                            continue
-                        c2, d2 = edges[e2, 0], edges[e2, 1]
-                        if a == c2 or a == d2 or b2 == c2 or b2 == d2:
-                            continue
-                        ids[0], ids[1], ids[2], ids[3], ids[4] = a, b2, c2, d2, 1
-                        acted += _collect(x1, c, ids) if mode == 3 else _pair(x0, x1, c, mode, ids)
-    return acted
+                        k = c.entries[e]
+                        if kind == 0:
+                            if _shares(tris[k], q):
+                                continue
+                            ids[0], ids[1], ids[2], ids[3] = q, tris[k, 0], tris[k, 1], tris[k, 2]
+                        else:
+                            u, v, w, z = edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1]
+                            if u == w or u == z or v == w or v == z:
+                                continue
+                            if k < q:  # in the order of the edges
+                                u, v, w, z = w, z, u, v
+                            ids[0], ids[1], ids[2], ids[3] = u, v, w, z
+                        ids[4] = kind
+                        _collect(x, c, ids)
+    if c.count[0] <= c.listed.shape[0]:
+        _by_gap(c.listed, c.listed_gap, c.count[0], c.count[BINS:], fill, skin, h)
+    return 0
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _collect(x, c, ids):
-    """List the pair if within (1 + LIST_MARGIN) h at x and not neighbours at rest."""
+    """List the pair if within h plus its skins at x and not neighbours at rest."""
     d = _distance(x, ids)
-    if d > (1.0 + LIST_MARGIN) * c.thickness or _rest_close(c, ids):
+    if d > c.thickness + _skins(c.anchor[3], ids) or _rest_close(c, ids):
         return 0
     k = c.count[0]
     if k < c.listed.shape[0]:
@@ -381,22 +576,22 @@ def _collect(x, c, ids):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
-def _listed(x0, x1, c, mode, drift):
-    """_visit's modes 0-2 over the candidate list: a pair is skipped where its distance at
-    the list's making, less what its two primitives' points may have moved since (c.moved),
-    leaves it further than h (mode 0) or apart (CCD) all through the step."""
+def _listed(x0, x1, c, mode, listed, end, slack):
+    """_visit's modes 0-2 over the pairs listed[:end]: a pair is skipped where its distance
+    at the list's making (c.listed_gap), less what its two primitives' points may have moved
+    since (c.moved), and `slack` leaves it further than h (mode 0) or apart (CCD) all
+    through the step (slack inf: none skipped; a flag would have numba compile the loop,
+    and _pair in it, twice). The one place _pair is inlined (it compiles for seconds)."""
     acted = 0
     h = c.thickness
     reach = h if mode == 0 else h * TOLERANCE
-    moved, listed, gap = c.moved, c.listed, c.listed_gap
-    for k in range(c.count[0]):
-        if gap[k] > reach + 2.0 * drift:
-            continue
+    moved, gap = c.moved, c.listed_gap
+    for k in range(end):
         m0, m1, m2, m3 = (moved[listed[k, 0]], moved[listed[k, 1]], moved[listed[k, 2]],
                           moved[listed[k, 3]])
         # a point of a triangle or edge moves no further than its farthest corner
         near = (m0 + max(m1, m2, m3) if listed[k, 4] == 0 else max(m0, m1) + max(m2, m3))
-        if gap[k] > reach + near:
+        if gap[k] > reach + near + slack:
             continue
         acted += _pair(x0, x1, c, mode, listed[k])
     return acted
@@ -404,12 +599,11 @@ def _listed(x0, x1, c, mode, drift):
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _drift(x0, x1, anchor, moved):
-    """The longest move of any point at x0 or at x1 from the anchor, less the cloth's mean
-    move at each: a common move changes no distance, and on the straight paths between x0
-    and x1 a point's move less the interpolated mean stays within the larger of the two.
-    moved[i]: that larger move of point i."""
+    """The largest move of any point at x0 or at x1 from the anchor, less the cloth's mean
+    move at each, over its skin: a common move changes no distance, and on the straight
+    paths between x0 and x1 a point's move less the interpolated mean stays within the
+    larger of the two. moved[i]: that larger move of point i."""
     n = anchor.shape[1]
-    worst = 0.0
     moved[:] = 0.0
     for x in (x0, x1):
         m0 = m1 = m2 = 0.0
@@ -422,34 +616,42 @@ def _drift(x0, x1, anchor, moved):
             d = ((x[0, i] - anchor[0, i] - m0) ** 2 + (x[1, i] - anchor[1, i] - m1) ** 2
                  + (x[2, i] - anchor[2, i] - m2) ** 2)
             moved[i] = max(moved[i], d)
-            worst = max(worst, d)
+    worst = 0.0
     for i in range(n):
         moved[i] = math.sqrt(moved[i])
-    return math.sqrt(worst)
+        worst = max(worst, moved[i] / anchor[3, i])
+    return worst
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _round(start, x, c, visit, inner, mode):
+def _round(start, x, c, visit, mode):
     """One visit of every pair in `mode` (0-2), from the candidate list where it holds (made
-    again where the points have moved too far from where it was made), else the hash."""
-    limit = 0.5 * LIST_MARGIN * c.thickness
+    again, with new skins, where a point has moved further than its skin from where it was
+    made), else the hash."""
     # an overflowed list is tried again only where the points have moved from where it was
     # (then the steps visit the hash)
     drift = _drift(start, x, c.anchor, c.moved) if c.count[0] != -1 else math.inf
-    if drift > limit:
-        c.count[0] = 0
+    if drift > 1.0:
+        if c.count[0] != -1:  # each point's skin from its move since the last list
+            h = c.thickness
+            rate = SKIN_CALLS / max(c.stats[6] - c.count[2], 1.0)
+            skin = c.anchor[3]
+            for i in range(x.shape[1]):
+                skin[i] = min(max(c.moved[i] * rate, SKIN_SHRINK * skin[i], SKIN_MIN * h),
+                              SKIN_MAX * h)
+        c.count[2] = c.stats[6]
         c.stats[7] += 1.0
         for a in range(3):
             for i in range(x.shape[1]):
                 c.anchor[a, i] = x[a, i]
-        visit(x, x, inner, 3, _cell(x, x, inner))
+        visit(x, x, c, 3, 0.0)
         if c.count[0] > c.listed.shape[0]:  # no valid list until the points have moved
             c.count[1] = c.count[0]
             c.count[0] = OVERFLOWED
         drift = _drift(start, x, c.anchor, c.moved)
-    if c.count[0] >= 0 and drift <= limit:
-        return visit(start, x, inner, 4 + mode, drift)
-    return visit(start, x, inner, mode, _cell(start, x, inner))
+    if c.count[0] >= 0 and drift <= 1.0:
+        return visit(start, x, c, 4 + mode, drift)
+    return visit(start, x, c, mode, _cell(start, x, c))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -460,6 +662,10 @@ def _pair(x0, x1, c, mode, ids):
     i0, i1, i2, i3 = ids[0], ids[1], ids[2], ids[3]
     kind = ids[4]
     tol = h * TOLERANCE
+    # swept boxes further apart than h (mode 0) or the tolerance: neither a meeting nor
+    # proximity at the end, and cheaper to tell than the distance
+    if _apart(x0, x1, ids, h if mode == 0 else tol):
+        return 0
     # the distance at the step's end; every point of the pair's paths is within `reach`
     # of its end, so no impact is possible where that distance exceeds 2 reach: the cubic
     # only for the others
@@ -639,18 +845,22 @@ def segment_crosses_triangle(p, q, a, b, c):
     return (u > 0.0 and v > 0.0 and w > 0.0) or (u < 0.0 and v < 0.0 and w < 0.0)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def tangles(x, c, out):
+def tangles(x: np.ndarray, c: RobustContact, out: np.ndarray) -> int:
     """The edge-triangle crossings of the cloth at x (3, N), pairs sharing no point: their
     count, the first len(out) written to out as (edge, triangle) rows."""
-    tris, edges = c.triangles, c.edges
-    cell = _boxes(x, x, tris, 0.0, c.box)
+    return _tangles(x, c.triangles, c.edges, c.anchor[3], c.box, c.bucket_start, c.bucket_work,
+                    c.entries, c.entry_box, out)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tangles(x, tris, edges, skin, box, bucket_start, bucket_work, entries, entry_box, out):
+    """tangles on the contact's arrays (a kernel taking the whole contact from Python
+    compiles its unboxing: seconds)."""
+    cell = _boxes(x, x, tris, 0.0, skin, 0.0, box)
     cell = max(cell, 1e-12)
-    while not _build(c.box, tris.shape[0], cell, c.bucket_start, c.bucket_work, c.entries,
-                         c.entry_box):
+    while not _build(box, tris.shape[0], cell, bucket_start, bucket_work, entries, entry_box):
         cell *= 2.0
-    mask = c.bucket_start.shape[0] - 2
-    box = c.box
+    mask = bucket_start.shape[0] - 2
     count = 0
     for e in range(edges.shape[0]):
         p, q = edges[e, 0], edges[e, 1]
@@ -660,8 +870,8 @@ def tangles(x, c, out):
             for iy in range(math.floor(lo[1] / cell), math.floor(hi[1] / cell) + 1):
                 for iz in range(math.floor(lo[2] / cell), math.floor(hi[2] / cell) + 1):
                     b = _hash(ix, iy, iz, mask)
-                    for k in range(c.bucket_start[b], c.bucket_start[b + 1]):
-                        t = c.entries[k]
+                    for k in range(bucket_start[b], bucket_start[b + 1]):
+                        t = entries[k]
                         if (box[0, t] > hi[0] or box[3, t] < lo[0] or box[1, t] > hi[1]
                                 or box[4, t] < lo[1] or box[2, t] > hi[2] or box[5, t] < lo[2]):
                             continue
@@ -693,7 +903,7 @@ def _apply(x, c):
 def _cell(x0, x1, c):
     """Cells as large as the triangles' swept boxes on average (their largest sides, with
     the thickness): a typical primitive covers up to 2 x 2 x 2 cells, a fast one more."""
-    return _boxes(x0, x1, c.triangles, c.thickness, c.box)
+    return _boxes(x0, x1, c.triangles, c.thickness, c.anchor[3], 0.0, c.box)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", pointer=True)
@@ -706,20 +916,22 @@ def robust_contact(x, x0, c):
         for i in range(x.shape[1]):
             c.start[a, i] = x0[a, i]
     start = c.start
-    visit, inner = c.visit, RobustContact(*c[:-1], None)
+    # the kernels below take c without its pointer to _visit (the type _visit was compiled
+    # for; one contact passed, not two, compiles quicker)
+    visit, c = c.visit, RobustContact(*c[:-1], None)
     # one visit for both: CCD where a pair meets within the step, else proximity
-    if _round(start, x, c, visit, inner, 0) == 0:
+    if _round(start, x, c, visit, 0) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
-        if _round(start, x, c, visit, inner, 1) == 0:
+        if _round(start, x, c, visit, 1) == 0:
             return
         _apply(x, c)
     c.frozen[:] = 0
     while True:
         before = c.frozen.sum()
-        if _round(start, x, c, visit, inner, 2) == 0:
+        if _round(start, x, c, visit, 2) == 0:
             break
         after = c.frozen.sum()
         for i in range(x.shape[1]):
