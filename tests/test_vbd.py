@@ -18,6 +18,7 @@ from pipeline.physics.forces import elastic_energy, total_force_now
 from pipeline.physics.mesh_forces import mesh_fem_energy
 from pipeline.physics.mesh_model import MeshSprings
 from pipeline.physics.system import drag_gamma
+from pipeline.physics.vbd_contact import COLLIDER_MARGIN
 from pipeline.simulation import Simulation
 
 N = 6  # points a side
@@ -229,8 +230,11 @@ def test_keyframed_pins_of_a_mesh_cloth_follow_their_pose(tmp_path):
 
 
 def test_a_scene_with_a_sphere_and_wind_runs():
-    """A 10 x 10 classic cloth falls on a sphere in a gusty wind: it runs, lies on the
-    sphere and does not sink into it further than the course's colliders allow."""
+    """A 10 x 10 classic cloth falls on a sphere in a gusty wind: it runs and lies on the
+    sphere, held by the contact in the descent (tests/test_vbd_contact.py) at its contact
+    distance (1 % of the thickness t = 1 cm from the surface), less a penetration under
+    1 % of t (measured 0.1 %): outside the sphere, where the course's colliders leave
+    points on the surface."""
     scene = scene_dict(cloth_dict(10, 10, ks=500.0, density=1.0, damping=0.5),
                        steps_per_frame=5, spheres=[((0.5, 0.5, 0.5), 0.3, 0.3)])
     scene["simulation"]["integrator"] = "vbd"
@@ -240,7 +244,8 @@ def test_a_scene_with_a_sphere_and_wind_runs():
         sim.advance(1)
     depth = 0.3 - np.linalg.norm(sim.positions - [0.5, 0.5, 0.5], axis=1)
     assert np.all(np.isfinite(sim.positions))
-    assert depth.max() < 1e-3 and np.abs(depth).min() < 1e-2
+    margin = COLLIDER_MARGIN * 0.01
+    assert -margin - 0.0001 < depth.max() < 0.0
 
 
 @pytest.mark.parametrize("case", CASES)
@@ -259,27 +264,3 @@ def test_the_colouring_is_proper(case, tmp_path):
                 for j in range(i):
                     assert np.all(shades[:, i] != shades[:, j])
     assert len(el.springs) or len(el.hinges)  # bending elements were coloured too
-
-
-@pytest.mark.skipif(__import__("numba").config.NUMBA_NUM_THREADS < 2, reason="needs 2 threads")
-def test_parallel_colours_give_the_same_bits_on_any_thread_count():
-    """From vbd.PARALLEL_POINTS points on, each colour's points are updated on the threads
-    (descend_in_chunks): no two share an element, so 1 and 2 threads give the same bits."""
-    import numba
-
-    from pipeline.physics.integrators import vbd
-
-    n = 32
-    assert n * n >= vbd.PARALLEL_POINTS
-    before = numba.get_num_threads()
-    results = []
-    try:
-        for threads in (1, 2):
-            numba.set_num_threads(threads)
-            run = Run(grid_scene("fem", spf=1, stretch=3000.0, n=n), "vbd")
-            assert run.state.descend.dispatcher is vbd.descend_in_chunks
-            assert run.advance(4)
-            results.append(run.x.copy())
-    finally:
-        numba.set_num_threads(before)
-    assert np.array_equal(results[0], results[1])

@@ -105,6 +105,7 @@ class System(NamedTuple):
     # descent solves the springs' own energy (a projection is no energy: docs/integrators.md)
     stretch_limit: bool = True
     iterations: int = 10  # the VBD integrator's sweeps per step (simulation.iterations)
+    friction: float = 0.3  # cloth on cloth (cloth.friction): VBD's self-contact
     kernels: StepKernels | None = None  # set by build_system (step_kernels)
 
 
@@ -184,6 +185,7 @@ def build_system(scene: Scene, model: ClothModel) -> System:
         contact=robust_contact_of(scene, model),
         stretch_limit=limit_acts,
         iterations=int(sim.iterations),
+        friction=float(scene.cloth.friction),
     )
     return system._replace(kernels=step_kernels(system))
 

@@ -216,6 +216,14 @@ def colouring(members: list[np.ndarray], n: int) -> tuple[np.ndarray, np.ndarray
 
 
 @njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def add_terms(a, b):
+    """The sum of two (energy, gradient, Hessian block) terms."""
+    g, h, u, k = a[1], a[2], b[1], b[2]
+    return (a[0] + b[0], (g[0] + u[0], g[1] + u[1], g[2] + u[2]),
+            (h[0] + k[0], h[1] + k[1], h[2] + k[2], h[3] + k[3], h[4] + k[4], h[5] + k[5]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
 def _at(x, p):
     return (x[0, p], x[1, p], x[2, p])
 
