@@ -14,7 +14,9 @@ entry ends up naming the other's machine code: a segfault when it is loaded (num
 numba#10128). Test workers (pytest-xdist), report pools, the compile helper of a first run
 and Dask workers all compile into one cache. Here a save holds an exclusive lock on its cache
 folder for the whole read-pick-write, and writes the data before the index, so that a reader
-(which takes no lock) never finds an entry whose data is not in place.
+(which takes no lock) never finds an entry whose data is not in place. A kernel's cache
+entry is stale when its file or any clothpipe file that file imports changes, not only its
+own file as in numba (`cache_stamp`).
 """
 from __future__ import annotations
 
@@ -37,6 +39,8 @@ from numba.core.runtime import rtsys
 from numba.core.types.function_type import WrapperAddressProtocol
 from numba.core.typing.typeof import typeof_impl
 from numba.experimental import function_type  # noqa: F401  (first-class functions: model, unboxing)
+
+from . import cache_stamp
 
 __all__ = ["STAGE", "THREADS", "KernelPointer", "adjust_threads", "argument_types", "njit",
            "numba_threads", "prange", "read_only", "threads_setting_error"]
@@ -339,6 +343,10 @@ def _load_overload(self, sig, target_context):
 
 
 caching.Cache.load_overload = _load_overload
+
+# numba stamps a cached kernel with its own file only: a kernel kept its old code after a
+# helper it calls in another file changed. Stamped with its file's imports too: cache_stamp.
+cache_stamp.install()
 
 
 class _BlasCheckWhenUsed(importlib.abc.MetaPathFinder):
