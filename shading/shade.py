@@ -94,9 +94,9 @@ def put(f, y, x, c):
 
 
 @njit(**STAGE, no_cpython_wrapper=True)
-def begin_row(f, y):
-    """Pixels [x0, x1) of output row y that have a written sample; every other pixel of
-    the row is set to the background (as `put` would from aa x aa background samples)."""
+def covered_span(f, y):
+    """Pixels [x0, x1) of output row y that hold every written sample of the row
+    (x0 = x1 = width: none)."""
     aa = f.aa
     lo = f.width * aa
     hi = -1
@@ -104,10 +104,16 @@ def begin_row(f, y):
         lo = min(lo, f.rowlo[sy])
         hi = max(hi, f.rowhi[sy])
     if lo > hi:
-        x0 = x1 = f.width
-    else:
-        x0 = lo // aa
-        x1 = hi // aa + 1
+        return f.width, f.width
+    return lo // aa, hi // aa + 1
+
+
+@njit(**STAGE, no_cpython_wrapper=True)
+def begin_row(f, y):
+    """Pixels [x0, x1) of output row y that have a written sample; every other pixel of
+    the row is set to the background (as `put` would from aa x aa background samples)."""
+    aa = f.aa
+    x0, x1 = covered_span(f, y)
     c = ZERO
     for k in range(aa * aa):
         c = add(c, f.bg)

@@ -18,6 +18,9 @@ A shader module defines `SHADER = Shader(...)`:
              positions (V,3), run on every mesh before projection
   primitive  "triangles" (default) or "lines" (mesh edges instead of triangles)
   textures   the texture slots it reads: subset of ("texture", "height_map", "cubemap")
+  lit        the factors of `lit` its fragment reads: subset of ("shadows", "occlusion")
+             (default both); the renderer computes neither the shadow map nor the
+             occlusion for a frame whose shaders do not read it (they cost nothing there)
 Adding a shader = adding one module here. The fragment stage (shade.fragment_stage, one
 loop for every shader) is compiled once per shader with its fragment inlined, and cached;
 a Shader made at run time outside this package works too, compiled once per process.
@@ -42,6 +45,7 @@ class Shader:
     vertex: Callable | None = None
     primitive: str = "triangles"
     textures: tuple = ()
+    lit: tuple = ("shadows", "occlusion")
     doc: str = ""
     key: Any = field(default=None, compare=False, repr=False)  # shade.ShaderKey, see stage_key
 

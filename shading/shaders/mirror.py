@@ -14,4 +14,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return sample_cube(cube, (d * n[0] - v[0], d * n[1] - v[1], d * n[2] - v[2]))
 
 
-SHADER = Shader("mirror", fragment, textures=("cubemap",), doc=__doc__)
+SHADER = Shader("mirror", fragment, textures=("cubemap",), lit=(), doc=__doc__)

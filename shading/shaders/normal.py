@@ -11,4 +11,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return ((n[0] + 1.0) * 0.5, (n[1] + 1.0) * 0.5, (n[2] + 1.0) * 0.5)
 
 
-SHADER = Shader("normal", fragment, doc=__doc__)
+SHADER = Shader("normal", fragment, lit=(), doc=__doc__)

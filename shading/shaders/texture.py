@@ -11,4 +11,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return bilinear(tex, uv[0], uv[1], True)
 
 
-SHADER = Shader("texture", fragment, textures=("texture",), doc=__doc__)
+SHADER = Shader("texture", fragment, textures=("texture",), lit=(), doc=__doc__)

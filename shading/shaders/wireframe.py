@@ -14,4 +14,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return (kd[0] * prm[LINE], kd[1] * prm[LINE + 1], kd[2] * prm[LINE + 2])
 
 
-SHADER = Shader("wireframe", fragment, PARAMS, primitive="lines", doc=__doc__)
+SHADER = Shader("wireframe", fragment, PARAMS, primitive="lines", lit=(), doc=__doc__)
