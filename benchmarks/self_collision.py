@@ -11,7 +11,8 @@ best of --rounds; the ratio per step (the aim: at most 2.5x the cloth without it
 second of the shot). Then the drape: an 80x80 cloth with self-collision dropped over the
 course's sphere onto a floor, 3 s of animation (the aim: at most 4 s to simulate). The
 numba threads are the process's own (clothjit.THREADS: one per free core); the load
-average is printed.
+average is printed. --cpu times the process's CPU time instead of the wall (steadier on a
+busy machine; the same figure as the wall with NUMBA_NUM_THREADS=1 on a quiet one).
 """
 from __future__ import annotations
 
@@ -38,17 +39,17 @@ def drape_scene(size: int = 80) -> dict:
     return raw
 
 
-def seconds_per_second(raw: dict, seconds: int) -> list[float]:
-    """Wall seconds of each simulated second of a fresh run of `raw`."""
+def seconds_per_second(raw: dict, seconds: int, clock=time.perf_counter) -> list[float]:
+    """Seconds (wall, or `clock`'s) of each simulated second of a fresh run of `raw`."""
     from pipeline import Simulation
 
     sim = Simulation(raw)
     fps = int(round(sim.scene.simulation.frames_per_sec))
     out = []
     for _ in range(seconds):
-        t0 = time.perf_counter()
+        t0 = clock()
         sim.advance(fps)
-        out.append(time.perf_counter() - t0)
+        out.append(clock() - t0)
     return out
 
 
@@ -58,13 +59,17 @@ def main() -> None:
     ap.add_argument("--seconds", type=int, default=4, help="simulated seconds (default 4)")
     ap.add_argument("--rounds", type=int, default=3, help="runs of each variant (best kept)")
     ap.add_argument("--no-drape", action="store_true", help="skip the 80x80 drape")
+    ap.add_argument("--cpu", action="store_true",
+                    help="time the process's CPU time (all threads) instead of the wall")
     args = ap.parse_args()
+    clock = time.process_time if args.cpu else time.perf_counter
 
     import clothjit
     from pipeline import Simulation, load_scene
 
     print(f"# {time.strftime('%Y-%m-%d %H:%M')}, {os.cpu_count()} cores, numba threads "
-          f"{clothjit.THREADS}, load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+          f"{clothjit.THREADS}, {'CPU time' if args.cpu else 'wall'}, load average "
+          f"{' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     for size in (int(s) for s in args.sizes.split(",")):
         raws = {on: self_collision_scene(size, on) for on in (True, False)}
         for raw in raws.values():  # load the kernels from the cache (or compile them)
@@ -72,7 +77,7 @@ def main() -> None:
         best = {on: [float("inf")] * args.seconds for on in raws}
         for _ in range(args.rounds):
             for on, raw in raws.items():
-                times = seconds_per_second(raw, args.seconds)
+                times = seconds_per_second(raw, args.seconds, clock)
                 best[on] = [min(a, b) for a, b in zip(best[on], times)]
         settings = load_scene(raws[True]).simulation
         steps = int(round(settings.frames_per_sec)) * settings.steps_per_frame
@@ -86,7 +91,7 @@ def main() -> None:
     if not args.no_drape:
         raw = drape_scene()
         Simulation(raw).advance(1)
-        runs = [sum(seconds_per_second(raw, 3)) for _ in range(args.rounds)]
+        runs = [sum(seconds_per_second(raw, 3, clock)) for _ in range(args.rounds)]
         print(f"drape 80x80 over a sphere onto a floor, self-collision on: {min(runs):.2f} s "
               f"(best of {args.rounds}; runs {', '.join(f'{r:.2f}' for r in runs)}) for 3 s of "
               f"animation (aim <= {DRAPE_AIM:g} s)")

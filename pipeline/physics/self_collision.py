@@ -9,10 +9,14 @@ How it is made fast without changing a bit:
 - boxes are numbered by a counting sort over the dense grid of the boxes the cloth spans
   (an open-addressing hash when that grid would be large, e.g. a point flew far away), so
   nothing is allocated per step; members of a box stay in ascending point order, which fixes
-  the summation order, with a copy of their positions in that order (updated as points move);
-- a point's candidates are then one contiguous run: their squared distances come from a
-  vectorised loop, and only those below a slightly raised threshold take the exact test on
-  the square root, as the course code computes it.
+  the summation order, with a copy of their positions in that order (updated as points move).
+  The grid's extent comes from integer box coordinates (a vectorised loop; a float min/max
+  is a serial chain);
+- a point's candidates are then one contiguous run: one branch-free loop takes their squared
+  distances and lists, in slot order, those below a slightly raised threshold (in a pile-up
+  about a third of a box's members, at random, which a branch per member mispredicts); only
+  those take the exact test on the square root, as the course code computes it. Indices are
+  unsigned (no wraparound tests) and nothing is reference-counted in the loops;
 - a point reads and moves only its own box's members, so the boxes are pushed in member
   order (box by box), and from PARALLEL_POINTS points in runs of whole boxes on the threads:
   the same bits as the course's row-major order on any thread count.
@@ -48,13 +52,14 @@ class SelfCollisionScratch:
         self.bucket_fill = np.zeros(DENSE_CELLS_PER_POINT * n + 2, dtype=np.int64)
         self.members = np.zeros(n, dtype=np.int64)
         self.sorted_x = np.zeros((3, n), dtype=np.float64)  # positions in member order
-        self.slot_of = np.zeros(n, dtype=np.int64)  # a point's index in member order
+        self.box_index = np.zeros((3, n), dtype=np.int64)  # box as integers (when finite)
         self.dist_sq = np.zeros(n, dtype=np.float64)
+        self.near_slot = np.zeros(n, dtype=np.uint64)
 
     def as_tuple(self):
         return (self.keys, self.slot_bucket, self.slot_generation, self.generation, self.box,
                 self.bucket_of, self.bucket_start, self.bucket_fill, self.members,
-                self.sorted_x, self.slot_of, self.dist_sq)
+                self.sorted_x, self.box_index, self.dist_sq, self.near_slot)
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -79,41 +84,42 @@ def _slot(keys, slot_bucket, slot_generation, gen, nbuckets, bx, by, bz):
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _box_coordinates(x, w, h, t, box):
-    """box[:, p] = floor(x[:, p] / (w, h, t)): a vectorisable loop."""
-    for a, size in ((0, w), (1, h), (2, t)):
-        xa, ba = x[a], box[a]
-        for p in range(xa.shape[0]):
-            ba[p] = np.floor(xa[p] / size)
+def _axis_boxes(xa, size, box, index):
+    """box[p] = floor(xa[p] / size), index[p] the same as an integer; returns (lowest index,
+    highest index, every box finite and within _EMPTY_LIMIT). One vectorised loop: integer
+    extremes have no serial dependence (float min/max would, NaN ordering)."""
+    low = np.int64(2 ** 62)
+    high = -low
+    good = True
+    for p in range(np.uint64(xa.shape[0])):
+        v = np.floor(xa[p] / size)
+        box[p] = v
+        good &= abs(v) < _EMPTY_LIMIT
+        q = np.int64(v)  # meaningless unless good
+        index[p] = q
+        low = min(low, q)
+        high = max(high, q)
+    return low, high, good
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _range_of(values):
-    """(lowest value, number of integers from lowest to highest) of integral floats."""
-    low = high = values[0]
-    for v in values:
-        low = min(low, v)
-        high = max(high, v)
-    return low, high - low + 1.0
-
-
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _number_boxes(box, bucket_of, cells):
-    """bucket_of[p] = index of p's box in the dense grid of boxes the points span; returns the
-    grid's cell count, or -1 (nothing written) when it exceeds `cells` or a box coordinate is
-    not finite."""
-    n = box.shape[1]
-    low_x, span_x = _range_of(box[0])
-    low_y, span_y = _range_of(box[1])
-    low_z, span_z = _range_of(box[2])
-    if not span_x * span_y * span_z <= cells:  # also false for NaN and infinities
+def _number_boxes(x, w, h, t, box, index, bucket_of, cells):
+    """box[:, p] = floor(x[:, p] / (w, h, t)); bucket_of[p] = index of p's box in the dense
+    grid of boxes the points span. Returns the grid's cell count, or -1 (bucket_of not
+    written) when it exceeds `cells` or a box coordinate is not finite (or beyond
+    _EMPTY_LIMIT)."""
+    low_x, high_x, good_x = _axis_boxes(x[0], w, box[0], index[0])
+    low_y, high_y, good_y = _axis_boxes(x[1], h, box[1], index[1])
+    low_z, high_z, good_z = _axis_boxes(x[2], t, box[2], index[2])
+    if not (good_x and good_y and good_z):
         return -1
-    sy, sz = np.int64(span_y), np.int64(span_z)
-    b0, b1, b2 = box[0], box[1], box[2]
-    for p in range(n):
-        bucket_of[p] = ((np.int64(b0[p] - low_x) * sy + np.int64(b1[p] - low_y)) * sz
-                        + np.int64(b2[p] - low_z))
-    return np.int64(span_x) * sy * sz
+    span_x, span_y, span_z = high_x - low_x + 1, high_y - low_y + 1, high_z - low_z + 1
+    if not float(span_x) * float(span_y) * float(span_z) <= cells:
+        return -1
+    b0, b1, b2 = index[0], index[1], index[2]
+    for p in range(np.uint64(x.shape[1])):
+        bucket_of[p] = ((b0[p] - low_x) * span_y + (b1[p] - low_y)) * span_z + (b2[p] - low_z)
+    return span_x * span_y * span_z
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -133,15 +139,16 @@ def _hash_boxes(box, bucket_of, keys, slot_bucket, slot_generation, generation):
     return nbuckets
 
 
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
 def _bin(x, w, h, t, scratch):
     """Assign boxes, sort members by box (ascending point order inside), copy positions;
     returns how many points were binned (members[:count])."""
     (keys, slot_bucket, slot_generation, generation, box, bucket_of, start, fill, members,
-     xs, slot_of, _) = scratch
+     xs, index, _, _) = scratch
     n = x.shape[1]
-    _box_coordinates(x, w, h, t, box)
-    nbuckets = _number_boxes(box, bucket_of, start.shape[0] - 2)
+    if n == 0:
+        return 0
+    nbuckets = _number_boxes(x, w, h, t, box, index, bucket_of, start.shape[0] - 2)
     if nbuckets < 0:
         nbuckets = _hash_boxes(box, bucket_of, keys, slot_bucket, slot_generation, generation)
     start[: nbuckets + 1] = 0
@@ -158,22 +165,10 @@ def _bin(x, w, h, t, scratch):
             m = fill[b]
             fill[b] += 1
             members[m] = p
-            slot_of[p] = m
             xs[0, m] = x[0, p]
             xs[1, m] = x[1, p]
             xs[2, m] = x[2, p]
     return start[nbuckets]
-
-
-@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _squared_distances(px, py, pz, xs, lo, hi, out):
-    """out[i] = |p - xs[:, lo + i]|^2: a vectorisable loop over one box's members."""
-    ax, ay, az = xs[0, lo:hi], xs[1, lo:hi], xs[2, lo:hi]
-    for i in range(hi - lo):
-        dx = px - ax[i]
-        dy = py - ay[i]
-        dz = pz - az[i]
-        out[i] = dx * dx + dy * dy + dz * dz
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
@@ -181,44 +176,53 @@ def _push_members(x, pinned, thickness, steps_per_frame, scratch, lo, hi):
     """The pushes of the points members[lo:hi], whole boxes, in that order. A point reads
     and moves only the members of its own box, so boxes are independent: this order and
     any split into runs of whole boxes give the course's row-major order's bits (within a
-    box the members are in ascending point order). A box's slots of dist_sq are its
-    scratch."""
-    bucket_of, start, members, xs, slot_of, dist_sq = (
-        scratch[5], scratch[6], scratch[8], scratch[9], scratch[10], scratch[11])
+    box the members are in ascending point order). A box's slots of dist_sq and near_slot
+    are its scratch. Indices are uint64 (no wraparound tests)."""
+    bucket_of, start, members, xs, dist_sq, near_slot = (
+        scratch[5], scratch[6], scratch[8], scratch[9], scratch[11], scratch[12])
+    ax, ay, az = xs[0], xs[1], xs[2]
     threshold = 2.0 * thickness
     threshold_sq_hi = threshold * threshold * (1.0 + 1e-9)
-    for j in range(lo, hi):
-        p = members[j]
+    one = np.uint64(1)
+    for jj in range(lo, hi):
+        j = np.uint64(jj)
+        p = np.uint64(members[j])
         if pinned[p]:
             continue
-        b = bucket_of[p]
-        first, last = start[b], start[b + 1]
-        px, py, pz = x[0, p], x[1, p], x[2, p]
-        near = dist_sq[first:last]
-        _squared_distances(px, py, pz, xs, first, last, near)
+        b = np.uint64(bucket_of[p])
+        first, last = np.uint64(start[b]), np.uint64(start[b + one])
+        px, py, pz = ax[j], ay[j], az[j]  # x[:, p]
+        # the members other than p that pass a cheap reject on the squared distance, in
+        # slot order, to near_slot[first:k]; branch-free (every member is written, k steps
+        # only on a near one): in a pile-up about a third of a box's members are near, at
+        # random, which a branch mispredicts
+        k = first
+        for m in range(first, last):
+            dx = px - ax[m]
+            dy = py - ay[m]
+            dz = pz - az[m]
+            d = dx * dx + dy * dy + dz * dz
+            dist_sq[m] = d
+            near_slot[k] = m
+            k += np.uint64(d < threshold_sq_hi) & np.uint64(m != j)
         sx = sy = sz = 0.0
         hits = 0
-        for i in range(last - first):
-            if not near[i] < threshold_sq_hi:  # cheap reject; the exact test is below
-                continue
-            m = first + i
-            if members[m] == p:
-                continue
-            dist = np.sqrt(near[i])
+        for i in range(first, k):  # the exact test, on the square root as the course has it
+            m = near_slot[i]
+            dist = np.sqrt(dist_sq[m])
             if dist < threshold and dist > 0.0:
                 push = threshold - dist
-                sx += ((px - xs[0, m]) / dist) * push
-                sy += ((py - xs[1, m]) / dist) * push
-                sz += ((pz - xs[2, m]) / dist) * push
+                sx += ((px - ax[m]) / dist) * push
+                sy += ((py - ay[m]) / dist) * push
+                sz += ((pz - az[m]) / dist) * push
                 hits += 1
         if hits > 0:
             x[0, p] += (sx / hits) / steps_per_frame
             x[1, p] += (sy / hits) / steps_per_frame
             x[2, p] += (sz / hits) / steps_per_frame
-            m = slot_of[p]
-            xs[0, m] = x[0, p]
-            xs[1, m] = x[1, p]
-            xs[2, m] = x[2, p]
+            ax[j] = x[0, p]
+            ay[j] = x[1, p]
+            az[j] = x[2, p]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True, pointer=True)
