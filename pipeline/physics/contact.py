@@ -46,6 +46,7 @@ from .collider_contact import FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_
 from .ccd import (edge_edge_distance, edge_edge_impact, orient, point_triangle_distance,
                   point_triangle_impact)
 from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
+from .self_collision import cell_hash
 
 CCD_ROUNDS = 4
 # the candidate list: every pair within h plus its skins at its making, good while no point
@@ -217,14 +218,6 @@ def _lerp(x0, x1, i, t):
 # --- the spatial hash of swept boxes ---------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
-def _hash(ix, iy, iz, mask):
-    h = (np.uint64(ix) * np.uint64(0x9E3779B97F4A7C15)) ^ (
-        np.uint64(iy) * np.uint64(0xC2B2AE3D27D4EB4F)) ^ (np.uint64(iz) * np.uint64(0x165667B19E3779F9))
-    h ^= h >> np.uint64(29)
-    return np.int64(h & np.uint64(mask))
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _boxes(x0, x1, prims, margin, skin, grow, box):
     """box[:, k] = the swept box of primitive k (its points at x0 and x1), grown by margin
@@ -266,7 +259,7 @@ def _build(box, count, cell, bucket_start, work, entries, entry_box):
         for ix in range(lo[0], hi[0] + 1):
             for iy in range(lo[1], hi[1] + 1):
                 for iz in range(lo[2], hi[2] + 1):
-                    b = _hash(ix, iy, iz, mask)
+                    b = cell_hash(ix, iy, iz, mask)
                     if last[b] != k:
                         last[b] = k
                         bucket_start[b + 1] += 1
@@ -284,7 +277,7 @@ def _build(box, count, cell, bucket_start, work, entries, entry_box):
         for ix in range(lo[0], hi[0] + 1):
             for iy in range(lo[1], hi[1] + 1):
                 for iz in range(lo[2], hi[2] + 1):
-                    b = _hash(ix, iy, iz, mask)
+                    b = cell_hash(ix, iy, iz, mask)
                     if last[b] == k:
                         continue
                     last[b] = k
@@ -360,7 +353,7 @@ def _visit(x0, x1, c, mode, cell):
             for ix in range(q0, math.floor(hi[0] / cell) + 1):
                 for iy in range(q1, math.floor(hi[1] / cell) + 1):
                     for iz in range(q2, math.floor(hi[2] / cell) + 1):
-                        b = _hash(ix, iy, iz, mask)
+                        b = cell_hash(ix, iy, iz, mask)
                         for e in range(c.bucket_start[b], c.bucket_start[b + 1]):
                             k = c.entries[e]
                             if kind == 1 and k <= q:
@@ -869,7 +862,7 @@ def _tangles(x, tris, edges, skin, box, bucket_start, bucket_work, entries, entr
         for ix in range(math.floor(lo[0] / cell), math.floor(hi[0] / cell) + 1):
             for iy in range(math.floor(lo[1] / cell), math.floor(hi[1] / cell) + 1):
                 for iz in range(math.floor(lo[2] / cell), math.floor(hi[2] / cell) + 1):
-                    b = _hash(ix, iy, iz, mask)
+                    b = cell_hash(ix, iy, iz, mask)
                     for k in range(bucket_start[b], bucket_start[b + 1]):
                         t = entries[k]
                         if (box[0, t] > hi[0] or box[3, t] < lo[0] or box[1, t] > hi[1]

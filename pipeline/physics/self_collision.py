@@ -63,13 +63,20 @@ class SelfCollisionScratch:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def cell_hash(ix, iy, iz, mask):
+    """The bucket (0..mask, mask + 1 a power of 2) of the integer cell (ix, iy, iz): the
+    spatial hash of self-collision's boxes, robust contact's and VBD's pair searches."""
+    h = np.uint64(ix) * np.uint64(0x9E3779B97F4A7C15)
+    h ^= np.uint64(iy) * np.uint64(0xC2B2AE3D27D4EB4F)
+    h ^= np.uint64(iz) * np.uint64(0x165667B19E3779F9)
+    h ^= h >> np.uint64(29)
+    return np.int64(h & np.uint64(mask))
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _slot(keys, slot_bucket, slot_generation, gen, nbuckets, bx, by, bz):
     mask = keys.shape[0] - 1
-    h = np.uint64(bx) * np.uint64(0x9E3779B97F4A7C15)
-    h ^= np.uint64(by) * np.uint64(0xC2B2AE3D27D4EB4F)
-    h ^= np.uint64(bz) * np.uint64(0x165667B19E3779F9)
-    h ^= h >> np.uint64(29)
-    s = np.int64(h & np.uint64(mask))
+    s = cell_hash(bx, by, bz, mask)
     while True:
         if slot_generation[s] != gen:
             slot_generation[s] = gen

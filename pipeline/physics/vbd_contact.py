@@ -79,7 +79,7 @@ from clothjit import njit
 
 from . import sdf
 from .colliders import _to_rest, box, mesh, plane, sphere
-from .self_collision import _EMPTY_LIMIT
+from .self_collision import _EMPTY_LIMIT, cell_hash
 from .vbd_energy import add_terms
 
 COLLIDER_MARGIN = 0.01  # of the thickness: a collider's contact distance beyond its pass's
@@ -474,15 +474,6 @@ def _clearance(gap, g):
 # --- the self-contact pairs of a step ------------------------------------------------------
 
 
-@njit(cache=True, nogil=True, error_model="numpy", forceinline=True)
-def _bucket(ix, iy, iz, mask):
-    h = np.uint64(ix) * np.uint64(0x9E3779B97F4A7C15)
-    h ^= np.uint64(iy) * np.uint64(0xC2B2AE3D27D4EB4F)
-    h ^= np.uint64(iz) * np.uint64(0x165667B19E3779F9)
-    h ^= h >> np.uint64(29)
-    return np.int64(h & np.uint64(mask))
-
-
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True)
 def find_pairs(cn, search, y, pinned):
     """Every free point's partners (pair_start, partners) for this step: the points q whose
@@ -519,13 +510,13 @@ def find_pairs(cn, search, y, pinned):
     for p in range(n):
         _bin(x, p, size, cell)
         if cell[0, p] != UNBINNED:
-            starts[_bucket(cell[0, p], cell[1, p], cell[2, p], mask) + 1] += 1
+            starts[cell_hash(cell[0, p], cell[1, p], cell[2, p], mask) + 1] += 1
     for b in range(mask + 1):
         starts[b + 1] += starts[b]
     near, near_cell = search.near, search.near_cell  # the members', in member order
     for p in range(n):  # a counting sort: each bucket's points ascending
         if cell[0, p] != UNBINNED:
-            b = _bucket(cell[0, p], cell[1, p], cell[2, p], mask)
+            b = cell_hash(cell[0, p], cell[1, p], cell[2, p], mask)
             m = starts[b]
             members[m] = p
             for a in range(3):
@@ -546,7 +537,7 @@ def find_pairs(cn, search, y, pinned):
         for k in range(13, 27):  # its own cell and the 13 after it
             di, dj, dk = k // 9 - 1, (k // 3) % 3 - 1, k % 3 - 1
             ix, iy, iz = cell[0, p] + di, cell[1, p] + dj, cell[2, p] + dk
-            b = _bucket(ix, iy, iz, mask)
+            b = cell_hash(ix, iy, iz, mask)
             for m in range(starts[b], starts[b + 1]):
                 # that cell's own members only (each q met once), after p in its own cell
                 if near_cell[0, m] != ix or near_cell[1, m] != iy or near_cell[2, m] != iz or (
