@@ -103,7 +103,9 @@ def _window(c0, c1, c2, c3, W, H, vx, vy, vz, viw, i):
 @njit(cache=True, error_model="numpy")
 def project(pos, m, W, H, clip, vcode, vx, vy, vz, viw):
     """clip[i] = m @ (pos[i], 1); outcodes; window coordinates of the vertices that need
-    no clipping (the others are projected after clipping, by the setup)."""
+    no clipping (the others are projected after clipping, by the setup). Returns the
+    outcodes or-ed together (no bit of 31: no primitive needs clipping)."""
+    codes = 0
     for i in range(pos.shape[0]):
         x = pos[i, 0]
         y = pos[i, 1]
@@ -118,8 +120,10 @@ def project(pos, m, W, H, clip, vcode, vx, vy, vz, viw):
         clip[i, 3] = c3
         code = _outcode(c0, c1, c2, c3)
         vcode[i] = code
+        codes |= code
         if (code & 31) == 0:
             _window(c0, c1, c2, c3, W, H, vx, vy, vz, viw, i)
+    return codes
 
 
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
@@ -392,7 +396,39 @@ def _clip_span(f, d, lo, hi):
     return lo, hi
 
 
-@njit(cache=True, inline="always")
+# _edges, _span and _begin_band are kernels of their own, called (LLVM inlines them) from
+# both triangle kernels: numba types an inlined callee again at every call site.
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
+def _edges(ax, ay, bx, by, cx, cy, x0, y0):
+    """Triangle a, b, c (clockwise on screen): its edge functions at the centre of sample
+    (x0, y0) (weights of a, b, c), their steps along x and along y, and the top-left
+    rule's biases."""
+    sx = x0 * SUB + HALF
+    sy = y0 * SUB + HALF
+    return ((cx - bx) * (sy - by) - (cy - by) * (sx - bx),
+            (ax - cx) * (sy - cy) - (ay - cy) * (sx - cx),
+            (bx - ax) * (sy - ay) - (by - ay) * (sx - ax),
+            -(cy - by) * SUB, -(ay - cy) * SUB, -(by - ay) * SUB,
+            (cx - bx) * SUB, (ax - cx) * SUB, (bx - ax) * SUB,
+            _edge_tl(bx, by, cx, cy), _edge_tl(cx, cy, ax, ay), _edge_tl(ax, ay, bx, by))
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
+def _span(e0, e1, e2, d0, d1, d2, bias0, bias1, bias2, n):
+    """The covered samples [lo, hi] of columns 0..n of a row whose first sample has edge
+    functions e0, e1, e2 (lo > hi: none). One or two columns (most triangles of a dense
+    mesh): their centres tested, without _clip_span's divisions (the same span)."""
+    if n <= 1:
+        lo = 0 if (e0 + bias0 >= 0) & (e1 + bias1 >= 0) & (e2 + bias2 >= 0) else 1
+        hi = 1 if (n == 1) & (e0 + d0 + bias0 >= 0) & (e1 + d1 + bias1 >= 0) & (
+            e2 + d2 + bias2 >= 0) else 0
+        return lo, hi
+    lo, hi = _clip_span(e0 + bias0, d0, 0, n)
+    lo, hi = _clip_span(e1 + bias1, d1, lo, hi)
+    return _clip_span(e2 + bias2, d2, lo, hi)
+
+
+@njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _begin_band(b, W, H, depth, prim, rowlo, rowhi, count, count_on):
     """Rows [r0, r1) of band b, after clearing what the previous frame wrote there."""
     r0 = b * BAND
@@ -437,9 +473,6 @@ def raster_triangles(g, groups, nb, W, H, nv, band_start, items, pv, pflag, psrc
             cx, cy = vx[ic], vy[ic]
             area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
             inv_area = 1.0 / area
-            bias0 = _edge_tl(bx, by, cx, cy)  # edge b->c, weight of a
-            bias1 = _edge_tl(cx, cy, ax, ay)  # edge c->a, weight of b
-            bias2 = _edge_tl(ax, ay, bx, by)  # edge a->b, weight of c
             za, zb, zc = vz[ia], vz[ib], vz[ic]
             wa, wb_, wc = viw[ia], viw[ib], viw[ic]
             flag = pflag[m]
@@ -451,21 +484,10 @@ def raster_triangles(g, groups, nb, W, H, nv, band_start, items, pv, pflag, psrc
                 g11, g12 = wb[ib - nv, 1], wb[ib - nv, 2]
                 g21, g22 = wb[ic - nv, 1], wb[ic - nv, 2]
             # edge functions at the first sample centre of row y0, steps along x and y
-            sx = x0 * SUB + HALF
-            sy = y0 * SUB + HALF
-            e0r = (cx - bx) * (sy - by) - (cy - by) * (sx - bx)
-            e1r = (ax - cx) * (sy - cy) - (ay - cy) * (sx - cx)
-            e2r = (bx - ax) * (sy - ay) - (by - ay) * (sx - ax)
-            d0 = -(cy - by) * SUB
-            d1 = -(ay - cy) * SUB
-            d2 = -(by - ay) * SUB
-            s0 = (cx - bx) * SUB
-            s1 = (ax - cx) * SUB
-            s2 = (bx - ax) * SUB
+            e0r, e1r, e2r, d0, d1, d2, s0, s1, s2, bias0, bias1, bias2 = _edges(
+                ax, ay, bx, by, cx, cy, x0, y0)
             for yy in range(y0, y1 + 1):
-                lo, hi = _clip_span(e0r + bias0, d0, 0, n)
-                lo, hi = _clip_span(e1r + bias1, d1, lo, hi)
-                lo, hi = _clip_span(e2r + bias2, d2, lo, hi)
+                lo, hi = _span(e0r, e1r, e2r, d0, d1, d2, bias0, bias1, bias2, n)
                 if lo <= hi:
                     xa = x0 + lo
                     if xa < rowlo[yy]:
@@ -508,6 +530,62 @@ def raster_triangles(g, groups, nb, W, H, nv, band_start, items, pv, pflag, psrc
                 e0r += s0
                 e1r += s1
                 e2r += s2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, rowhi,
+                 count):
+    """Only the depth (a shadow map's) of triangles tris that need no clipping (`project`
+    found no outcode bit of 31), set up and drawn one after the other: no primitive
+    arrays, no bins (a dense mesh's triangles cover about a sample each: storing and
+    binning them cost as much as drawing them). The same depths and spans as
+    setup_triangles + raster_triangles (the least z is the same in any order); the rows
+    of group g's bands, each group reading every triangle."""
+    nb = (H + BAND - 1) // BAND
+    for b in range(g, nb, groups):
+        _begin_band(b, W, H, depth, prim, rowlo, rowhi, count, False)
+    for t in range(tris.shape[0]):
+        ia = tris[t, 0]
+        ib = tris[t, 1]
+        ic = tris[t, 2]
+        if vcode[ia] & vcode[ib] & vcode[ic] & FRUSTUM:
+            continue  # entirely outside one frustum plane
+        area, x0, x1, y0, y1 = _tri_box(W, H, vx[ia], vy[ia], vx[ib], vy[ib], vx[ic],
+                                        vy[ic])
+        if x0 > x1:
+            continue
+        if area < 0:  # clockwise on screen, as _put_tri stores it
+            ib, ic = ic, ib
+            area = -area
+        n = x1 - x0
+        ax, ay = vx[ia], vy[ia]
+        bx, by = vx[ib], vy[ib]
+        cx, cy = vx[ic], vy[ic]
+        inv_area = 1.0 / area
+        za, zb, zc = vz[ia], vz[ib], vz[ic]
+        e0r, e1r, e2r, d0, d1, d2, s0, s1, s2, bias0, bias1, bias2 = _edges(
+            ax, ay, bx, by, cx, cy, x0, y0)
+        for yy in range(y0, y1 + 1):
+            if groups == 1 or (yy // BAND) % groups == g:
+                lo, hi = _span(e0r, e1r, e2r, d0, d1, d2, bias0, bias1, bias2, n)
+                if lo <= hi:
+                    if x0 + lo < rowlo[yy]:
+                        rowlo[yy] = x0 + lo
+                    if x0 + hi > rowhi[yy]:
+                        rowhi[yy] = x0 + hi
+                    e0 = e0r + d0 * lo
+                    e1 = e1r + d1 * lo
+                    e2 = e2r + d2 * lo
+                    for s in range(yy * W + x0 + lo, yy * W + x0 + hi + 1):
+                        z = (e0 * inv_area) * za + (e1 * inv_area) * zb + (e2 * inv_area) * zc
+                        if z < depth[s] and z >= 0.0 and z <= 1.0:
+                            depth[s] = z
+                        e0 += d0
+                        e1 += d1
+                        e2 += d2
+            e0r += s0
+            e1r += s1
+            e2r += s2
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -285,8 +285,9 @@ class Renderer:
         extras = ShaderKey(int(bool(f.vis.shape[0] or f.occ.shape[0] or len(passes) > 1)))
         for k, (prm, tex, hmap, cube, key) in enumerate(inputs):
             stage = fragment_stage if key >= 0 else uncached_fragment_stage
+            dark = ShaderKey(2) if f.vis.shape[0] and passes[k].dark else extras
             run_groups(stage, groups, (f._replace(pass_id=k), prm, tex, hmap, cube, key,
-                                       extras), first=True)
+                                       dark), first=True)
         if clock:
             t5 = clock()
             timings.update(prepare=t1 - t0, gather=t2 - t1, shadows=t4 - t3, shade=t5 - t4)

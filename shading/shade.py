@@ -231,7 +231,8 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key, extras):
 
     `extras` (a ShaderKey: numba compiles each value apart, so a frame without them runs
     the plain loop, none of their branches): 1 when the frame has shadows (f.vis), ambient
-    occlusion (f.occ) or objects of several shaders (f.obj_pass). With several shaders the
+    occlusion (f.occ) or objects of several shaders (f.obj_pass); 2 as 1, with shadows and
+    a `dark` shader: a sample the light does not reach adds black without being shaded. With several shaders the
     stage runs once per shader, pass f.pass_id of f.passes, and shades only the samples of
     the objects of its pass (and the background, in pass 0); each pixel's sum is kept in
     f.acc between passes (`accumulate`). Every pass writes the pixel, the last one its
@@ -249,6 +250,8 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key, extras):
                         c = add(c, f.bg)
                 elif multi and f.obj_pass[f.obj_of[f.prim[s]]] != f.pass_id:
                     continue
+                elif extras == 2 and f.vis[s] == 0.0:
+                    continue  # the colour's every term is scaled by 0
                 else:
                     p, n0, v, uv, t, kd = fetch(f, s)
                     lit = (1.0, 1.0)

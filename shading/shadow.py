@@ -164,7 +164,7 @@ class ShadowMap:
         self.zab = (far / (far - near), far * near / (far - near))
         for k, view in enumerate(views):
             buf = self.buffers[k]
-            buf.draw(va, nv, verts, verts.shape[0], proj @ view, groups)
+            buf.draw(va, nv, verts, verts.shape[0], proj @ view, groups, depth_only=True)
             run_groups(_tiles, groups, (self.depth[k], buf.rowlo, buf.rowhi, self.tiles[k]))
             # the blocker search reaches no nearer the light than the nearest caster
             z = self.tiles[k, 0].min()

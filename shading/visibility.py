@@ -58,11 +58,13 @@ class VisibilityBuffer:
         self.wb = np.empty((cap, 3))  # row e: source weights of slot nv + e (<= cap)
 
     def draw(self, va, nv, verts, npr, vp, groups, *, lines_aa=0, count_coverage=False,
-             timings=None):
+             timings=None, depth_only=False):
         """Rasterise primitives verts[:npr] (vertex ids into va[:nv], whose columns 0:3 are
         world positions) through the 4x4 view-projection vp: triangles, or lines drawn
         lines_aa samples thick when lines_aa > 0. timings: receives "geometry" (projection,
-        setup, binning) and "raster" seconds."""
+        setup, binning) and "raster" seconds. depth_only: triangles whose depth alone is
+        read (a shadow map's; primitive ids and barycentrics left as they are), drawn by
+        raster.raster_depth when none needs clipping."""
         W, H = self.width, self.height
         if self.clip is None or self.clip.shape[0] < nv:
             self.clip = np.empty((va.shape[0], 4))
@@ -77,9 +79,19 @@ class VisibilityBuffer:
         projected = None
         while True:
             if projected is not self.vx:  # (again if the vertex slots were reallocated)
-                R.project(va[:nv], vp, W, H, self.clip, self.vcode, self.vx, self.vy,
-                          self.vz, self.viw)
+                codes = R.project(va[:nv], vp, W, H, self.clip, self.vcode, self.vx,
+                                  self.vy, self.vz, self.viw)
                 projected = self.vx
+            if depth_only and not lines_aa and not codes & 31:
+                if clock:
+                    t1 = clock()
+                run_groups(R.raster_depth, groups, (verts[:npr], W, H, self.vcode, self.vx,
+                                                    self.vy, self.vz, self.depth, self.prim,
+                                                    self.rowlo, self.rowhi, self.count))
+                self.n_prims = npr
+                if clock:
+                    timings.update(geometry=t1 - t0, raster=clock() - t1)
+                return
             m, e = setup(verts[:npr], self.clip, self.vcode, nv, W, H, *extra, self.vx,
                          self.vy, self.vz, self.viw, self.wb, self.pv, self.pflag, self.psrc,
                          self.pbox, self.band_start)

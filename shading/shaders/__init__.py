@@ -21,6 +21,9 @@ A shader module defines `SHADER = Shader(...)`:
   lit        the factors of `lit` its fragment reads: subset of ("shadows", "occlusion")
              (default both); the renderer computes neither the shadow map nor the
              occlusion for a frame whose shaders do not read it (they cost nothing there)
+  dark       True when its colour is exactly black where the light's visibility is 0
+             (every term scaled by it, no ambient term): with shadows the fragment stage
+             then skips such samples, whose colour the look-ups already decided
 Adding a shader = adding one module here. The fragment stage (shade.fragment_stage, one
 loop for every shader) is compiled once per shader with its fragment inlined, and cached;
 a Shader made at run time outside this package works too, compiled once per process.
@@ -46,6 +49,7 @@ class Shader:
     primitive: str = "triangles"
     textures: tuple = ()
     lit: tuple = ("shadows", "occlusion")
+    dark: bool = False
     doc: str = ""
     key: Any = field(default=None, compare=False, repr=False)  # shade.ShaderKey, see stage_key
 

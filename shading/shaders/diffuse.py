@@ -11,4 +11,4 @@ def fragment(p, n0, v, uv, t, kd, lp, li, prm, tex, hmap, cube, lit):
     return (kd[0] * e[0] * ndl, kd[1] * e[1] * ndl, kd[2] * e[2] * ndl)
 
 
-SHADER = Shader("diffuse", fragment, lit=("shadows",), doc=__doc__)
+SHADER = Shader("diffuse", fragment, lit=("shadows",), dark=True, doc=__doc__)
