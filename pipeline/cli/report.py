@@ -134,16 +134,22 @@ def frame_shots(plan: ReportPlan, runs: Sequence[VariantRun]) -> dict:
 
 
 def warm_up(plan: ReportPlan) -> None:
-    """Render a 16x16 frame with every shader (untimed) so the kernels are compiled before
-    the render times are measured, and a broken shader or missing texture fails early."""
+    """Render a 16x16 frame with every shader under each of the variants' render settings
+    (untimed), so that every kernel the cells use (the shadows' and occlusion's in a sweep
+    that turns them on) is compiled or loaded before the render times are measured, and a
+    broken shader or missing texture fails early."""
     from pipeline.physics.model import build_model
     from pipeline.run.frames import render_frame
 
-    v = plan.variants[0]
-    model = build_model(v.scene)
-    for s in plan.shaders:
-        render_frame(v.scene, model.initial_positions.copy(), model, shader=s, width=16,
-                     height=16, aa=1)
+    seen = set()
+    for v in plan.variants:
+        if repr(v.scene.render) in seen:
+            continue
+        seen.add(repr(v.scene.render))
+        model = build_model(v.scene)
+        for s in plan.shaders:
+            render_frame(v.scene, model.initial_positions.copy(), model, shader=s, width=16,
+                         height=16, aa=1)
 
 
 def build_grids(plan: ReportPlan, runs: Sequence[VariantRun], progress=None) -> list[Grid]:
