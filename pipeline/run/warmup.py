@@ -349,15 +349,20 @@ def split(jobs: list[Job], render: bool, step: float) -> tuple[list[Job], list[J
     alone = estimate_seconds(jobs, [], render, step, False)
     here = [job for job in jobs if job.linked]
     helper: list[Job] = []
+    # each side's seconds kept as running sums (estimate_seconds' sums, in the same order)
+    mine, theirs = sum(COMPILE_SECONDS[j.name] for j in here), 0
     for job in jobs:
         if job.linked:
             continue
-        if (estimate_seconds(here + [job], helper, render, step, True)
-                <= estimate_seconds(here, helper + [job], render, step, True)):
+        seconds = COMPILE_SECONDS[job.name]
+        if (_in_two_processes(mine + seconds, theirs, render, step)
+                <= _in_two_processes(mine, theirs + seconds, render, step)):
             here.append(job)
+            mine += seconds
         else:
             helper.append(job)
-    if estimate_seconds(here, helper, render, step, True) < alone:
+            theirs += seconds
+    if _in_two_processes(mine, theirs, render, step) < alone:
         return here, helper, True
     return list(jobs), [], False
 
@@ -400,10 +405,15 @@ def estimate_seconds(here: list[Job], helper: list[Job], render: bool, step: flo
     process."""
     mine = sum(COMPILE_SECONDS[j.name] for j in here)
     theirs = sum(COMPILE_SECONDS[j.name] for j in helper)
-    rendering = RENDER_SECONDS if render else 0.0
     if two_processes:
-        return CONTENTION * max(mine + step, HELPER_START + theirs + rendering)
-    return mine + theirs + step + rendering
+        return _in_two_processes(mine, theirs, render, step)
+    return mine + theirs + step + (RENDER_SECONDS if render else 0.0)
+
+
+def _in_two_processes(mine: float, theirs: float, render: bool, step: float) -> float:
+    """estimate_seconds in two processes from each one's compile seconds."""
+    rendering = RENDER_SECONDS if render else 0.0
+    return CONTENTION * max(mine + step, HELPER_START + theirs + rendering)
 
 
 FIRST_RUN = "compiling kernels for this machine (first run only{})"
