@@ -540,7 +540,8 @@ def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, r
     arrays, no bins (a dense mesh's triangles cover about a sample each: storing and
     binning them cost as much as drawing them). The same depths and spans as
     setup_triangles + raster_triangles (the least z is the same in any order); the rows
-    of group g's bands, each group reading every triangle."""
+    of group g's bands, each group reading every triangle and setting up those that reach
+    its bands."""
     nb = (H + BAND - 1) // BAND
     for b in range(g, nb, groups):
         _begin_band(b, W, H, depth, prim, rowlo, rowhi, count, False)
@@ -552,8 +553,9 @@ def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, r
             continue  # entirely outside one frustum plane
         area, x0, x1, y0, y1 = _tri_box(W, H, vx[ia], vy[ia], vx[ib], vy[ib], vx[ic],
                                         vy[ic])
-        if x0 > x1:
-            continue
+        if x0 > x1 or (groups > 1 and y0 // BAND == y1 // BAND
+                       and (y0 // BAND) % groups != g):
+            continue  # off the map, or within one band of another group's
         if area < 0:  # clockwise on screen, as _put_tri stores it
             ib, ic = ic, ib
             area = -area

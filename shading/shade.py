@@ -232,12 +232,12 @@ def _fragment_stage(f, g, prm, tex, hmap, cube, key, extras):
     `extras` (a ShaderKey: numba compiles each value apart, so a frame without them runs
     the plain loop, none of their branches): 1 when the frame has shadows (f.vis), ambient
     occlusion (f.occ) or objects of several shaders (f.obj_pass); 2 as 1, with shadows and
-    a `dark` shader: a sample the light does not reach adds black without being shaded. With several shaders the
-    stage runs once per shader, pass f.pass_id of f.passes, and shades only the samples of
-    the objects of its pass (and the background, in pass 0); each pixel's sum is kept in
-    f.acc between passes (`accumulate`). Every pass writes the pixel, the last one its
-    final colour: a pixel loop without a branch around `put` (with one, the loop ran 5-15 %
-    slower, even with a single shader)."""
+    a `dark` shader: a sample the light does not reach adds black without being shaded.
+    With several shaders the stage runs once per shader, pass f.pass_id of f.passes, and
+    shades only the samples of the objects of its pass (and the background, in pass 0);
+    each pixel's sum is kept in f.acc between passes (`accumulate`). Every pass writes the
+    pixel, the last one its final colour: a pixel loop without a branch around `put` (with
+    one, the loop ran 5-15 % slower, even with a single shader)."""
     multi = extras and f.obj_pass.shape[0] > 0
     for y in range(g, f.height, f.groups):
         x0, x1 = begin_row(f, y)
