@@ -38,6 +38,9 @@ SUB = 256  # sub-pixel precision (8 bits)
 HALF = SUB // 2
 GUARD = 8.0  # guard band, in NDC units: |x|, |y| <= GUARD * w after clipping
 BAND = 8  # rows per band
+# rows per band of a shadow map's groups (raster_depth): a triangle across two groups'
+# bands is set up by both, a third of a dense cloth's with bands of 8, a tenth with 32
+DEPTH_BAND = 4 * BAND
 FRUSTUM = 32 | 64 | 128 | 256 | 512 | 1024
 # pflag values: how a primitive's perspective-correct weights map to its source's
 AS_IS, SWAPPED, CLIPPED = 0, 1, 2
@@ -540,22 +543,26 @@ def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, r
     arrays, no bins (a dense mesh's triangles cover about a sample each: storing and
     binning them cost as much as drawing them). The same depths and spans as
     setup_triangles + raster_triangles (the least z is the same in any order); the rows
-    of group g's bands, each group reading every triangle and setting up those that reach
-    its bands."""
-    nb = (H + BAND - 1) // BAND
-    for b in range(g, nb, groups):
-        _begin_band(b, W, H, depth, prim, rowlo, rowhi, count, False)
+    of group g's bands of DEPTH_BAND rows, each group reading every triangle and setting
+    up those that reach its bands."""
+    for b in range((H + BAND - 1) // BAND):
+        if (b * BAND // DEPTH_BAND) % groups == g:
+            _begin_band(b, W, H, depth, prim, rowlo, rowhi, count, False)
     for t in range(tris.shape[0]):
         ia = tris[t, 0]
         ib = tris[t, 1]
         ic = tris[t, 2]
         if vcode[ia] & vcode[ib] & vcode[ic] & FRUSTUM:
             continue  # entirely outside one frustum plane
+        if groups > 1:  # within one band of another group's: skipped before any set-up
+            y0 = max(0, -((HALF - min(vy[ia], min(vy[ib], vy[ic]))) // SUB)) // DEPTH_BAND
+            if y0 % groups != g and y0 == min(H - 1, (max(vy[ia], max(vy[ib], vy[ic]))
+                                                      - HALF) // SUB) // DEPTH_BAND:
+                continue
         area, x0, x1, y0, y1 = _tri_box(W, H, vx[ia], vy[ia], vx[ib], vy[ib], vx[ic],
                                         vy[ic])
-        if x0 > x1 or (groups > 1 and y0 // BAND == y1 // BAND
-                       and (y0 // BAND) % groups != g):
-            continue  # off the map, or within one band of another group's
+        if x0 > x1:
+            continue  # off the map
         if area < 0:  # clockwise on screen, as _put_tri stores it
             ib, ic = ic, ib
             area = -area
@@ -568,7 +575,7 @@ def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, r
         e0r, e1r, e2r, d0, d1, d2, s0, s1, s2, bias0, bias1, bias2 = _edges(
             ax, ay, bx, by, cx, cy, x0, y0)
         for yy in range(y0, y1 + 1):
-            if groups == 1 or (yy // BAND) % groups == g:
+            if groups == 1 or (yy // DEPTH_BAND) % groups == g:
                 lo, hi = _span(e0r, e1r, e2r, d0, d1, d2, bias0, bias1, bias2, n)
                 if lo <= hi:
                     if x0 + lo < rowlo[yy]:

@@ -33,7 +33,7 @@ from .shaders import get_shader
 from .shadow import (DEFAULT_RADIUS, ShadowMap, caster_bounds, levels, map_size,
                      visibility_pass)
 from .textures import resolve
-from .visibility import VisibilityBuffer, run_groups
+from .visibility import VisibilityBuffer, beside, run_groups
 
 DEFAULT_LIGHT_POSITION = (0.5, 2.0, 2.0)
 DEFAULT_LIGHT_INTENSITY = (3.0, 3.0, 3.0)
@@ -269,10 +269,22 @@ class Renderer:
         f = Frame(self.height, self.width, self.aa, groups, self.view.prim, self.view.bary,
                   self.view.rowlo, self.view.rowhi, self.verts, self.obj_of, self.va, kd,
                   camera.eye, lp, li, bg, self.image, _OFF, _OFF, *_ONE_PASS)
-        if shadows:
-            f = self._shadows(f, nv, npr, lp, radius, params, groups)
-        if occlusion:
-            f = self._occlusion(f, camera, vp, params, groups)
+        if shadows and occlusion and groups > 1:
+            # the occlusion's passes on this thread beside the shadow map drawn on the
+            # others: either, spread over all threads, barely runs faster (short kernels,
+            # each call a wait for the other threads to wake; a map's triangles set up by
+            # each thread whose bands they reach); side by side they take the longer's time
+            size = self._map_size(params)
+            f = beside(lambda g: self._shadow_map(nv, npr, lp, radius, size, g),
+                       lambda: self._occlusion(f._replace(groups=1), camera, vp, params, 1),
+                       groups)._replace(groups=groups)
+            f = self._lookups(f, radius, groups)
+        else:
+            if shadows:
+                self._shadow_map(nv, npr, lp, radius, self._map_size(params), groups)
+                f = self._lookups(f, radius, groups)
+            if occlusion:
+                f = self._occlusion(f, camera, vp, params, groups)
         self.frame = f
         if clock:
             t4 = clock()
@@ -293,12 +305,15 @@ class Renderer:
             timings.update(prepare=t1 - t0, gather=t2 - t1, shadows=t4 - t3, shade=t5 - t4)
         return self.image
 
-    def _shadows(self, f, nv, npr, lp, radius, params, groups):
-        """Frame f with each sample's visibility of the light (shadow.py): a shadow map of
-        the meshes that cast shadows (all but planes), then the look-up passes."""
+    def _map_size(self, params) -> int:
         size = int(params.get("shadow_map_size", map_size(self.sw, self.sh)))
         if size < 16:
             raise ValueError(f"shadow_map_size must be >= 16, got {size}")
+        return size
+
+    def _shadow_map(self, nv, npr, lp, radius, size, groups):
+        """The shadow map (size x size texels a view) of the meshes that cast shadows (all
+        but planes), drawn from the light at lp (shadow.py)."""
         if self.shadow_map is None or self.shadow_map.size != size:
             self.shadow_map = ShadowMap(size)
         # the casting meshes' primitives and vertices, in runs of consecutive meshes: one
@@ -322,6 +337,10 @@ class Renderer:
         else:
             bounds = caster_bounds(self.va, vruns, lp) if runs else None
         self.shadow_map.build(self.va, nv, verts, bounds, lp, radius, groups)
+
+    def _lookups(self, f, radius, groups):
+        """Frame f with each sample's visibility of the light, looked up in the shadow
+        map."""
         m = self.shadow_map
         ns = self.view.prim.shape[0]
         top = levels(self.sw, self.sh)
@@ -331,7 +350,7 @@ class Renderer:
             self.refine = np.empty(((self.sw + cell - 1) // cell)
                                    * ((self.sh + cell - 1) // cell), bool)
         # one call per step, each after the one before in every group; one call in all on
-        # one thread (a call with the frame costs some 40 us)
+        # one thread (each call waits for the pool's threads to wake: 40-90 us here)
         for step in range(top, -1, -1) if groups > 1 else (top,):
             run_groups(visibility_pass, groups, (f, m.depth, m.tiles, m.views, m.tanh,
                                                  m.closest, m.zab, radius, top, step,

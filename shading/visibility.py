@@ -127,12 +127,20 @@ _pool = None
 _pool_lock = threading.Lock()
 
 
+def _workers(n):
+    """The render pool, with at least n threads."""
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool._max_workers < n:
+            _pool = ThreadPoolExecutor(max_workers=n, thread_name_prefix="render")
+        return _pool
+
+
 def run_groups(kernel, groups, args, first=False):
     """kernel(g, groups, *args) for g in range(groups) (with first=True:
     kernel(args[0], g, *args[1:]), the fragment-stage signature); group 0 on this thread,
     the others on a thread pool (the kernels release the GIL; the pool's idle threads
     sleep, they do not spin). Every row belongs to exactly one group."""
-    global _pool
     if first:
         call = lambda g: kernel(args[0], g, *args[1:])  # noqa: E731
     else:
@@ -140,10 +148,18 @@ def run_groups(kernel, groups, args, first=False):
     if groups == 1:
         call(0)
         return
-    with _pool_lock:
-        if _pool is None or _pool._max_workers < groups - 1:
-            _pool = ThreadPoolExecutor(max_workers=groups - 1, thread_name_prefix="render")
-    futs = [_pool.submit(call, g) for g in range(1, groups)]
+    futs = [_workers(groups - 1).submit(call, g) for g in range(1, groups)]
     call(0)
     for fu in futs:
         fu.result()
+
+
+def beside(task, this, groups):
+    """task(groups - 1) on the pool while this() runs on this thread; returns this()'s
+    result once both are done. task may run_groups with its groups - 1: the pool keeps
+    a thread for each."""
+    fut = _workers(groups - 1).submit(task, groups - 1)
+    try:
+        return this()
+    finally:
+        fut.result()

@@ -355,6 +355,28 @@ def test_shadows_off_is_the_old_image():
     assert a.tobytes() != c.tobytes()
 
 
+def test_looks_independent_of_thread_count():
+    """Shadows, occlusion and both: the same image on 1, 2, 3 and 7 threads (with both,
+    the occlusion runs on one thread beside the shadow map drawn on the others; the map's
+    bands are shared out among those); the map and the occlusion are not trivial."""
+    meshes, cam, lp = random_scene(5)
+    for look in ({"shadows": True}, {"ambient_occlusion": True},
+                 {"shadows": True, "ambient_occlusion": True}):
+        imgs = []
+        for threads in (1, 2, 3, 7):
+            r = Renderer(cam.width, cam.height, 2)
+            r.threads = threads
+            imgs.append(r.render(meshes, cam, light(lp), "phong", look).copy())
+        for img in imgs[1:]:
+            np.testing.assert_array_equal(img, imgs[0], err_msg=str(look))
+        if "shadows" in look:
+            vis = r.light_visibility()[r.prim >= 0]
+            assert (vis == 0).mean() > 0.05 and (vis == 1).mean() > 0.3
+            assert np.isfinite(r.shadow_map.depth).sum() > 20000
+        if "ambient_occlusion" in look:
+            assert (r.occlusion < 0.9).mean() > 0.01
+
+
 @pytest.mark.parametrize("size", [(160, 120), (800, 750)])
 def test_ambient_occlusion_darkens_contact_only_and_scales_the_ambient_term(size):
     """A sphere resting on a plane: the occlusion factor is 1 on the open plane far from
