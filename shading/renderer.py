@@ -336,7 +336,7 @@ class Renderer:
             bounds = caster_bounds(one, np.array([[0, one.shape[0]]], np.int64), lp)
         else:
             bounds = caster_bounds(self.va, vruns, lp) if runs else None
-        self.shadow_map.build(self.va, nv, verts, bounds, lp, radius, groups)
+        self.shadow_map.build(self.va, nv, verts, vruns, bounds, lp, radius, groups)
 
     def _lookups(self, f, radius, groups):
         """Frame f with each sample's visibility of the light, looked up in the shadow

@@ -136,10 +136,11 @@ class ShadowMap:
         self.closest = np.empty(0)
         self.zab = (1.0, 0.0)
 
-    def build(self, va, nv, verts, bounds, light, radius, groups):
-        """Draw the casters (triangles verts, vertex ids into va[:nv]; bounds: their
-        vertices' bounds as `caster_bounds` gives them, None without casters) from the
-        light at `light` (3 numbers) of radius `radius`."""
+    def build(self, va, nv, verts, runs, bounds, light, radius, groups):
+        """Draw the casters (triangles verts, vertex ids into va[:nv] within the ranges
+        `runs` ((k, 2) [start, end)); bounds: their vertices' bounds as `caster_bounds`
+        gives them, None without casters) from the light at `light` (3 numbers) of radius
+        `radius`."""
         L = np.asarray(light, float)
         if bounds is None or verts.shape[0] == 0:
             self._views([])
@@ -164,7 +165,7 @@ class ShadowMap:
         self.zab = (far / (far - near), far * near / (far - near))
         for k, view in enumerate(views):
             buf = self.buffers[k]
-            buf.draw(va, nv, verts, verts.shape[0], proj @ view, groups, depth_only=True)
+            buf.draw(va, nv, verts, verts.shape[0], proj @ view, groups, depth_only=runs)
             run_groups(_tiles, groups, (self.depth[k], buf.rowlo, buf.rowhi, self.tiles[k]))
             # the blocker search reaches no nearer the light than the nearest caster
             z = self.tiles[k, 0].min()

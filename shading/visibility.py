@@ -58,13 +58,14 @@ class VisibilityBuffer:
         self.wb = np.empty((cap, 3))  # row e: source weights of slot nv + e (<= cap)
 
     def draw(self, va, nv, verts, npr, vp, groups, *, lines_aa=0, count_coverage=False,
-             timings=None, depth_only=False):
+             timings=None, depth_only=None):
         """Rasterise primitives verts[:npr] (vertex ids into va[:nv], whose columns 0:3 are
         world positions) through the 4x4 view-projection vp: triangles, or lines drawn
         lines_aa samples thick when lines_aa > 0. timings: receives "geometry" (projection,
-        setup, binning) and "raster" seconds. depth_only: triangles whose depth alone is
-        read (a shadow map's; primitive ids and barycentrics left as they are), drawn by
-        raster.raster_depth when none needs clipping."""
+        setup, binning) and "raster" seconds. depth_only: the ranges ((k, 2) [start, end))
+        of the vertices of triangles whose depth alone is read (a shadow map's; primitive
+        ids and barycentrics left as they are), drawn by raster.raster_depth when none of
+        those vertices needs clipping (a floor plane's far corners may: they draw nothing)."""
         W, H = self.width, self.height
         if self.clip is None or self.clip.shape[0] < nv:
             self.clip = np.empty((va.shape[0], 4))
@@ -82,7 +83,9 @@ class VisibilityBuffer:
                 codes = R.project(va[:nv], vp, W, H, self.clip, self.vcode, self.vx,
                                   self.vy, self.vz, self.viw)
                 projected = self.vx
-            if depth_only and not lines_aa and not codes & 31:
+            if depth_only is not None and not lines_aa and not (
+                    codes & 31 and any(np.bitwise_or.reduce(self.vcode[a:b]) & 31
+                                       for a, b in depth_only)):
                 if clock:
                     t1 = clock()
                 run_groups(R.raster_depth, groups, (verts[:npr], W, H, self.vcode, self.vx,

@@ -311,3 +311,45 @@ def test_reuse_after_a_bigger_mesh_with_many_clipped_triangles():
         want = Renderer(40, 30).render([crossing], cam, None, sh)
         np.testing.assert_array_equal(got, want, err_msg=sh)
         assert got.any()
+
+
+@pytest.mark.parametrize("groups", [1, 3])
+def test_depth_only_draw_gives_the_full_rasters_depths(monkeypatch, groups):
+    """A shadow map's draw (raster_depth: each triangle set up and drawn at once) against
+    the camera's pipeline (set up, binned, drawn) on the same triangles: the same depth at
+    every sample and the same covered span per row. Other vertices (a plane's far corners
+    behind the near plane) need clipping: the casters' own ranges decide, so the depth-only
+    draw still runs."""
+    from shading import raster as R
+    from shading.visibility import VisibilityBuffer
+
+    rng = np.random.default_rng(4)
+    nw = nh = 30
+    j = np.tile(np.arange(nw, dtype=float), nh)
+    i = np.repeat(np.arange(nh, dtype=float), nw)
+    casters = np.stack([j / (nw - 1) - 0.5 + rng.normal(0, 0.01, j.size),
+                        0.2 * np.sin(3 * j / nw) * np.cos(5 * i / nh),
+                        i / (nh - 1) - 0.5], axis=1)
+    far = np.array([[-50.0, -1.0, -50.0], [50.0, -1.0, -50.0], [0.0, -1.0, 60.0]])
+    va = np.zeros((casters.shape[0] + 3, 12))
+    va[:casters.shape[0], :3] = casters
+    va[casters.shape[0]:, :3] = far
+    quads = np.array([(r * nw + c, r * nw + c + 1, (r + 1) * nw + c)
+                      for r in range(nh - 1) for c in range(nw - 1)]
+                     + [((r + 1) * nw + c, r * nw + c + 1, (r + 1) * nw + c + 1)
+                        for r in range(nh - 1) for c in range(nw - 1)], np.int32)
+    cam = Camera((0.3, 1.2, 0.4), (0.0, 0.0, 0.0), width=97, height=83)
+    vp = cam.view_projection()
+    runs = np.array([[0, casters.shape[0]]], np.int64)
+    calls = []
+    real = R.raster_depth
+    monkeypatch.setattr(R, "raster_depth", lambda *a: calls.append(1) or real(*a))
+    nv = va.shape[0]
+    fast, full = VisibilityBuffer(97, 83), VisibilityBuffer(97, 83)
+    fast.draw(va, nv, quads, quads.shape[0], vp, groups, depth_only=runs)
+    assert calls, "the depth-only draw did not run"
+    full.draw(va, nv, quads, quads.shape[0], vp, groups)
+    np.testing.assert_array_equal(fast.depth, full.depth)
+    np.testing.assert_array_equal(fast.rowlo, full.rowlo)
+    np.testing.assert_array_equal(fast.rowhi, full.rowhi)
+    assert np.isfinite(fast.depth).sum() > 2000
