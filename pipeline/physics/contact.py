@@ -407,15 +407,18 @@ def _by_gap(listed, gap, count, start, fill, skin, h):
     """Order the `count` listed pairs by slack bin, in place (a fixed order of swaps: the
     same every run); start: where each bin starts; fill: scratch."""
     start[:] = 0
+    # each pair's bin once, kept beside its kind (listed[:, 4] is 0 or 1) while it moves
     for k in range(count):
-        start[_slack_bin(listed, gap, skin, h, k) + 1] += 1
+        b = _slack_bin(listed, gap, skin, h, k)
+        start[b + 1] += 1
+        listed[k, 4] += 2 * b
     for b in range(GAP_BINS):
         start[b + 1] += start[b]
         fill[b] = start[b]
     for b in range(GAP_BINS):
         while fill[b] < start[b + 1]:
             k = fill[b]
-            d = _slack_bin(listed, gap, skin, h, k)
+            d = listed[k, 4] >> 1
             if d == b:
                 fill[b] += 1
                 continue
@@ -424,6 +427,8 @@ def _by_gap(listed, gap, count, start, fill, skin, h):
             gap[k], gap[j] = gap[j], gap[k]
             for i in range(5):
                 listed[k, i], listed[j, i] = listed[j, i], listed[k, i]
+    for k in range(count):
+        listed[k, 4] &= 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
