@@ -126,7 +126,8 @@ class VisibilityBuffer:
             timings.update(geometry=t1 - t0, raster=clock() - t1)
 
 
-_pool = None
+_pool = None  # the groups' threads: their tasks never wait on other tasks
+_aside = None  # beside()'s threads: their tasks wait only on the groups' tasks
 _pool_lock = threading.Lock()
 
 
@@ -158,10 +159,15 @@ def run_groups(kernel, groups, args, first=False):
 
 
 def beside(task, this, groups):
-    """task(groups - 1) on the pool while this() runs on this thread; returns this()'s
-    result once both are done. task may run_groups with its groups - 1: the pool keeps
-    a thread for each."""
-    fut = _workers(groups - 1).submit(task, groups - 1)
+    """task(groups - 1) on a thread of its own while this() runs on this thread; returns
+    this()'s result once both are done. task may run_groups with its groups - 1 (on the
+    render pool, whose tasks wait on nothing: renderers on several threads at once cannot
+    hold each other up)."""
+    global _aside
+    with _pool_lock:
+        if _aside is None:
+            _aside = ThreadPoolExecutor(max_workers=4, thread_name_prefix="render-beside")
+    fut = _aside.submit(task, groups - 1)
     try:
         return this()
     finally:

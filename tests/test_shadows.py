@@ -377,6 +377,40 @@ def test_looks_independent_of_thread_count():
             assert (r.occlusion < 0.9).mean() > 0.01
 
 
+def test_renderers_on_several_threads_at_once():
+    """Renderers with both looks on 3 threads each, drawing at once from 3 threads (their
+    shadow maps beside their occlusion, each map on the shared pool): every image that of
+    the same render alone."""
+    import threading
+
+    meshes, cam, lp = random_scene(5)
+    look = {"shadows": True, "ambient_occlusion": True}
+    alone = Renderer(cam.width, cam.height)
+    alone.threads = 1
+    want = alone.render(meshes, cam, light(lp), "phong", look).copy()
+    got, errors = [], []
+
+    def draw():
+        try:
+            r = Renderer(cam.width, cam.height)
+            r.threads = 3
+            for _ in range(4):
+                got.append(r.render(meshes, cam, light(lp), "phong", look).copy())
+        except Exception as exc:  # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=draw, daemon=True) for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(120)
+    assert not any(t.is_alive() for t in threads), "the renderers held each other up"
+    assert not errors, errors
+    assert len(got) == 12
+    for img in got:
+        np.testing.assert_array_equal(img, want)
+
+
 @pytest.mark.parametrize("size", [(160, 120), (800, 750)])
 def test_ambient_occlusion_darkens_contact_only_and_scales_the_ambient_term(size):
     """A sphere resting on a plane: the occlusion factor is 1 on the open plane far from
