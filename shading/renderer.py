@@ -306,6 +306,7 @@ class Renderer:
         return self.image
 
     def _map_size(self, params) -> int:
+        """The shadow map's side: params["shadow_map_size"], else shadow.map_size's."""
         size = int(params.get("shadow_map_size", map_size(self.sw, self.sh)))
         if size < 16:
             raise ValueError(f"shadow_map_size must be >= 16, got {size}")
