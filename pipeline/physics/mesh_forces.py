@@ -42,23 +42,32 @@ def _hinge_at(x, hinges, h):
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
-    """f[:] = mass * gravity + the springs' forces at x (3, N); buffer (3, S) scratch."""
-    a, b, rest, stiffness = springs.a, springs.b, springs.rest, springs.stiffness
-    start, slot, sign = springs.start, springs.slot, springs.sign
-    count, n = a.shape[0], x.shape[1]
+    """f[:] = mass * gravity + the springs' forces at x (3, N); buffer (3, S) scratch. Reads
+    the springs' compact fields (`ends`, `code`: int32, half the bytes of a, b, slot and
+    sign): at 100x100 the pass streams several MB a step, beyond a core's cache."""
+    ends, rest, stiffness = springs.ends, springs.rest, springs.stiffness
+    start, code = springs.start, springs.code
+    count, n = ends.shape[1], x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, count)
-        _spring_pass(x, a, b, rest, stiffness, buffer, lo, hi)
+        _spring_pass(x, ends[0], ends[1], rest, stiffness, buffer, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
             m = mass[p]
             fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
             for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
-                s, w = np.uint64(slot[j]), sign[j]
-                fx += w * buffer[0, s]
-                fy += w * buffer[1, s]
-                fz += w * buffer[2, s]
+                e = np.uint64(code[j])
+                s = e >> np.uint64(1)
+                bx, by, bz = buffer[0, s], buffer[1, s], buffer[2, s]
+                if e & np.uint64(1):  # the point is the spring's b: sign -1, the same bits
+                    fx -= bx
+                    fy -= by
+                    fz -= bz
+                else:
+                    fx += bx
+                    fy += by
+                    fz += bz
             f[0, p], f[1, p], f[2, p] = fx, fy, fz
 
 
@@ -257,9 +266,9 @@ def mesh_limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scrat
     rule; `limit` (1, S) is 1.1 rest, `limit_sq_lo` its square lowered by 1e-9 relative: a
     spring not longer than that is short of its limit and takes no square root, as in
     limit_stretch's pre-pass; `exist_bits` and `scratch` unused)."""
-    a, b, lim_row, lim_sq_row = springs.a, springs.b, limit[0], limit_sq_lo[0]
+    a, b, lim_row, lim_sq_row = springs.ends[0], springs.ends[1], limit[0], limit_sq_lo[0]
     for s in range(springs.structural):
-        p, q = a[s], b[s]
+        p, q = np.uint64(a[s]), np.uint64(b[s])
         dx = x[0, q] - x[0, p]
         dy = x[1, q] - x[1, p]
         dz = x[2, q] - x[2, p]
