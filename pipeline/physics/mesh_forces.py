@@ -43,8 +43,8 @@ def _hinge_at(x, hinges, h):
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
     """f[:] = mass * gravity + the springs' forces at x (3, N); buffer (3, S) scratch. Reads
-    the springs' compact fields (`ends`, `code`: int32, half the bytes of a, b, slot and
-    sign): at 100x100 the pass streams several MB a step, beyond a core's cache."""
+    the springs' int32 `ends` and `code` where they fit (at 100x100 the pass streams
+    several MB a step, beyond a core's cache)."""
     ends, rest, stiffness = springs.ends, springs.rest, springs.stiffness
     start, code = springs.start, springs.code
     count, n = ends.shape[1], x.shape[1]
@@ -55,20 +55,27 @@ def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
             m = mass[p]
-            fx, fy, fz = m * gravity[0], m * gravity[1], m * gravity[2]
-            for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
-                e = np.uint64(code[j])
-                s = e >> np.uint64(1)
-                bx, by, bz = buffer[0, s], buffer[1, s], buffer[2, s]
-                if e & np.uint64(1):  # the point is the spring's b: sign -1, the same bits
-                    fx -= bx
-                    fy -= by
-                    fz -= bz
-                else:
-                    fx += bx
-                    fy += by
-                    fz += bz
-            f[0, p], f[1, p], f[2, p] = fx, fy, fz
+            f[0, p], f[1, p], f[2, p] = _signed_sum(buffer, start, code, p, m * gravity[0],
+                                                    m * gravity[1], m * gravity[2])
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _signed_sum(buffer, start, code, p, fx, fy, fz):
+    """(fx, fy, fz) plus buffer's column of each spring at point p (MeshSprings.code),
+    subtracted where p is the spring's b end (the same bits as adding -1 times it)."""
+    for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
+        e = np.uint64(code[j])
+        s = e >> np.uint64(1)
+        bx, by, bz = buffer[0, s], buffer[1, s], buffer[2, s]
+        if e & np.uint64(1):
+            fx -= bx
+            fy -= by
+            fz -= bz
+        else:
+            fx += bx
+            fy += by
+            fz += bz
+    return fx, fy, fz
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -317,7 +324,7 @@ def mesh_spring_product(y, springs, unit, alpha, buffer, out):
     """out = K y at the point of mesh_spring_jacobian: (K y)_a = K_s (y_b - y_a) and minus
     that at b, K_s = k u u^T + alpha (I - u u^T); buffer (3, S)."""
     a, b, stiffness = springs.a, springs.b, springs.stiffness
-    start, slot, sign = springs.start, springs.slot, springs.sign
+    start, code = springs.start, springs.code
     count, n = a.shape[0], y.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, count)
@@ -334,25 +341,20 @@ def mesh_spring_product(y, springs, unit, alpha, buffer, out):
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
         for p in range(lo, hi):
-            fx = fy = fz = 0.0
-            for j in range(start[p], start[p + 1]):
-                s, g = slot[j], sign[j]
-                fx += g * buffer[0, s]
-                fy += g * buffer[1, s]
-                fz += g * buffer[2, s]
-            out[0, p], out[1, p], out[2, p] = fx, fy, fz
+            out[0, p], out[1, p], out[2, p] = _signed_sum(buffer, start, code, p, 0.0, 0.0,
+                                                          0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def mesh_spring_diagonal_of(springs, unit, alpha, out):
     """out[a, p] = the diagonal of -K at the point of mesh_spring_jacobian: the sum of
     k u_a^2 + alpha (1 - u_a^2) over the springs at p."""
-    start, slot, stiffness = springs.start, springs.slot, springs.stiffness
+    start, code, stiffness = springs.start, springs.code, springs.stiffness
     for p in range(out.shape[1]):
         for ax in range(3):
             total = 0.0
             for j in range(start[p], start[p + 1]):
-                s = slot[j]
+                s = code[j] >> 1
                 w, u = alpha[0, s], unit[0, ax, s]
                 if w >= 0.0:
                     total += stiffness[s] * u * u + w * (1.0 - u * u)

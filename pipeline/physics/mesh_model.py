@@ -59,14 +59,11 @@ class MeshSprings(NamedTuple):
     rest: np.ndarray  # (S,) float64 rest length
     stiffness: np.ndarray  # (S,) float64 k, 0 where its kind is disabled
     structural: int  # springs [0, structural) are structural, the rest bending
-    start: np.ndarray  # (N + 1,) int64: point p's springs are slot[start[p]:start[p + 1]]
-    slot: np.ndarray  # (2 S,) int64 spring indices, ascending per point
-    sign: np.ndarray  # (2 S,) float64: +1 where the point is the spring's a, -1 where its b
-    # what mesh_forces.mesh_spring_forces and mesh_limit_stretch stream every step, in fewer
-    # bytes (int32 where they fit, _indices): the same springs and incidence, made from the
-    # fields above (a _replace of a, b, slot or sign must make them again)
-    ends: np.ndarray | None = None  # (2, S): a, b
-    code: np.ndarray | None = None  # (2 S,): 2 slot + 1 where sign is -1
+    start: np.ndarray  # (N + 1,) int64: point p's springs are code[start[p]:start[p + 1]]
+    # (2 S,) per point its springs, ascending: 2 spring + 1 where p is the spring's b end
+    # (its force taken with sign -1), 2 spring where its a; int32 where it fits (_indices)
+    code: np.ndarray
+    ends: np.ndarray  # (2, S) a and b as _indices makes them: fewer bytes a step to stream
 
 
 class MeshFem(NamedTuple):
@@ -168,12 +165,9 @@ def mesh_springs(points: np.ndarray, topo: MeshTopology, ks: float,
     count = len(a)
     slot = np.where(slot2 < count, slot2, slot2 - count)
     order = np.lexsort((slot, np.repeat(np.arange(n), np.diff(start))))
-    slot, sign_rows = slot[order], slot2[order]
-    sign = np.where(sign_rows < count, 1.0, -1.0)
-    slot = slot.astype(np.int64)
+    code = 2 * slot[order].astype(np.int64) + (slot2[order] >= count)
     return MeshSprings(a=a, b=b, rest=rest, stiffness=k, structural=len(structural_pairs),
-                       start=start, slot=slot, sign=sign, ends=_indices(np.stack([a, b])),
-                       code=_indices(2 * slot + (sign < 0.0)))
+                       start=start, code=_indices(code), ends=_indices(np.stack([a, b])))
 
 
 def rest_frames(points: np.ndarray, triangles: np.ndarray,
