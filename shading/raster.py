@@ -129,20 +129,22 @@ def project(pos, m, W, H, clip, vcode, vx, vy, vz, viw):
     return codes
 
 
+@njit(cache=True, inline="always")
+def _sample_range(n, a, b, c):
+    """The first and last of samples 0 .. n - 1 along one axis whose centre (i*SUB + HALF)
+    lies between the least and the greatest of a, b, c (first > last: none)."""
+    return (max(0, -((HALF - min(a, min(b, c))) // SUB)),
+            min(n - 1, (max(a, max(b, c)) - HALF) // SUB))
+
+
 @njit(cache=True, error_model="numpy", no_cpython_wrapper=True)
 def _tri_box(W, H, ax, ay, bx, by, cx, cy):
     """(twice the signed area, x0, x1, y0, y1): the sample columns / rows whose centre
     (i*SUB + HALF) lies in the triangle's bounding box, clipped to the image; x0 > x1
     when it covers no sample (or is degenerate)."""
     area = (bx - ax) * (cy - ay) - (by - ay) * (cx - ax)
-    xmin = min(ax, min(bx, cx))
-    xmax = max(ax, max(bx, cx))
-    ymin = min(ay, min(by, cy))
-    ymax = max(ay, max(by, cy))
-    x0 = max(0, -((HALF - xmin) // SUB))
-    x1 = min(W - 1, (xmax - HALF) // SUB)
-    y0 = max(0, -((HALF - ymin) // SUB))
-    y1 = min(H - 1, (ymax - HALF) // SUB)
+    x0, x1 = _sample_range(W, ax, bx, cx)
+    y0, y1 = _sample_range(H, ay, by, cy)
     if area == 0 or y0 > y1:
         x1 = x0 - 1
     return area, x0, x1, y0, y1
@@ -555,9 +557,8 @@ def raster_depth(g, groups, tris, W, H, vcode, vx, vy, vz, depth, prim, rowlo, r
         if vcode[ia] & vcode[ib] & vcode[ic] & FRUSTUM:
             continue  # entirely outside one frustum plane
         if groups > 1:  # within one band of another group's: skipped before any set-up
-            y0 = max(0, -((HALF - min(vy[ia], min(vy[ib], vy[ic]))) // SUB)) // DEPTH_BAND
-            if y0 % groups != g and y0 == min(H - 1, (max(vy[ia], max(vy[ib], vy[ic]))
-                                                      - HALF) // SUB) // DEPTH_BAND:
+            y0, y1 = _sample_range(H, vy[ia], vy[ib], vy[ic])
+            if (y0 // DEPTH_BAND) % groups != g and y0 // DEPTH_BAND == y1 // DEPTH_BAND:
                 continue
         area, x0, x1, y0, y1 = _tri_box(W, H, vx[ia], vy[ia], vx[ib], vy[ib], vx[ic],
                                         vy[ic])
