@@ -143,9 +143,10 @@ def warm_up(plan: ReportPlan) -> None:
 
     seen = set()
     for v in plan.variants:
-        if repr(v.scene.render) in seen:
+        key = repr(v.scene.render)
+        if key in seen:
             continue
-        seen.add(repr(v.scene.render))
+        seen.add(key)
         model = build_model(v.scene)
         for s in plan.shaders:
             render_frame(v.scene, model.initial_positions.copy(), model, shader=s, width=16,
