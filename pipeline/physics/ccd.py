@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from clothjit import njit
 
 BISECTIONS = 60  # halvings of a piece: far below double precision's resolution of [0, 1]
@@ -206,7 +208,7 @@ def point_triangle_impact(p0, a0, b0, c0, p1, a1, b1, c1, tolerance, roots):
     dw = _sub(_sub(p1, p0), va)
     c = coplanarity_cubic(e1, d1, e2, d2, w, dw)
     if _degenerate(c, e1, e2, w, d1, d2, dw):
-        return _sampled(0, p0, a0, b0, c0, p1, a1, b1, c1, tolerance)
+        return _sampled(np.int64(0), p0, a0, b0, c0, p1, a1, b1, c1, tolerance)
     count = cubic_roots(c, roots)
     for i in range(count):
         t = roots[i]
@@ -228,7 +230,7 @@ def edge_edge_impact(a0, b0, c0, d0, a1, b1, c1, d1, tolerance, roots):
     dw = _sub(vc, va)
     c = coplanarity_cubic(e1, de1, e2, de2, w, dw)
     if _degenerate(c, e1, e2, w, de1, de2, dw):
-        return _sampled(1, a0, b0, c0, d0, a1, b1, c1, d1, tolerance)
+        return _sampled(np.int64(1), a0, b0, c0, d0, a1, b1, c1, d1, tolerance)
     count = cubic_roots(c, roots)
     for i in range(count):
         t = roots[i]

@@ -382,7 +382,8 @@ def _visit(x0, x1, c, mode, cell):
                             if count == batch.shape[0]:
                                 acted += _listed(x0, x1, c, mode, batch, count, math.inf)
                                 count = 0
-    return acted + _listed(x0, x1, c, mode, batch, count, math.inf)
+    # np.int64: numba types the count here as the literal 0 and would compile _listed again
+    return acted + _listed(x0, x1, c, mode, batch, np.int64(count), math.inf)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -690,7 +691,8 @@ def _pair(x0, x1, c, mode, ids):
             return 0
         c.stats[1] += 1.0
         c.stats[5] = min(c.stats[5], d / h)
-        _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d, True)
+        _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d,
+                 np.bool_(True))  # not literals: one _respond for both
         return 1
     if _rest_close(c, ids):
         return 0
@@ -722,7 +724,7 @@ def _pair(x0, x1, c, mode, ids):
     if sep >= target:
         return 0
     c.stats[2] += 1.0
-    _respond(x0, x1, c, ids, weights, normal, target - sep, False)
+    _respond(x0, x1, c, ids, weights, normal, target - sep, np.bool_(False))
     return 1
 
 
@@ -917,19 +919,21 @@ def robust_contact(x, x0, c):
     # the kernels below take c without its pointer to _visit (the type _visit was compiled
     # for; one contact passed, not two, compiles quicker)
     visit, c = c.visit, RobustContact(*c[:-1], None)
+    # the modes are passed as np.int64, not literals: numba compiles a kernel once per
+    # literal argument (_round three times, seconds each)
     # one visit for both: CCD where a pair meets within the step, else proximity
-    if _round(start, x, c, visit, 0) == 0:
+    if _round(start, x, c, visit, np.int64(0)) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
-        if _round(start, x, c, visit, 1) == 0:
+        if _round(start, x, c, visit, np.int64(1)) == 0:
             return
         _apply(x, c)
     c.frozen[:] = 0
     while True:
         before = c.frozen.sum()
-        if _round(start, x, c, visit, 2) == 0:
+        if _round(start, x, c, visit, np.int64(2)) == 0:
             break
         after = c.frozen.sum()
         for i in range(x.shape[1]):
