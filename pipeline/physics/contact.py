@@ -125,7 +125,9 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     the scene's mesh colliders (mesh_contact.pack_meshes), none by default."""
     if meshes is None:
         meshes = pack_meshes((), rest.shape[1])
-    tris = np.ascontiguousarray(triangles, dtype=np.int64)
+    # a writeable copy: a mesh's triangles are read-only, a type of its own to numba (every
+    # robust contact kernel compiled again for a mesh cloth)
+    tris = np.array(triangles, dtype=np.int64, order="C")
     pairs = np.sort(np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]]), axis=1)
     edges = np.unique(pairs, axis=0)
     n = rest.shape[1]

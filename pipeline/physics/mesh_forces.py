@@ -435,9 +435,10 @@ def mesh_fem_prepare(x, fem, springs, unit, alpha):
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def mesh_fem_apply(x, y, fem, springs, unit, alpha, buffer, out, passes):
-    mesh_fem_product(x, y, fem, out, False)
+    # np.bool_, not a literal: numba would compile the product once per literal (seconds each)
+    mesh_fem_product(x, y, fem, out, np.bool_(False))
 
 
 @njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def mesh_fem_diagonal(x, fem, springs, unit, alpha, out):
-    mesh_fem_product(x, x, fem, out, True)
+    mesh_fem_product(x, x, fem, out, np.bool_(True))
