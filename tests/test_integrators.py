@@ -160,16 +160,16 @@ def test_order_of_convergence_on_a_small_grid(name):
 ENERGY_STEPS = 100_000
 
 
-def _energy_track(name):
+def _energy_track(name, steps=ENERGY_STEPS):
     """Energy (kinetic + springs) of a free 4x4 cloth, no gravity, no damping, no pins,
-    every 1000 steps over 1e5 steps of dt = 1e-3 s (omega_max dt ~ 0.04)."""
+    every 1000 steps over `steps` steps of dt = 1e-3 s (omega_max dt ~ 0.04)."""
     cloth = cloth_dict(4, 4, density=1.0, ks=10.0)
     scene = scene_dict(cloth, gravity=(0.0, 0.0, 0.0))
     start = Run(scene, "verlet").model.initial_positions.copy()
     start += np.random.default_rng(3).uniform(-1, 1, size=start.shape) * (0.01 / 3)
     run = Run(scene, name, dt=1e-3, start_positions=start)
     energies = [run.energy()]
-    for _ in range(ENERGY_STEPS // 1000):
+    for _ in range(steps // 1000):
         if not run.advance(1000):
             energies.append(math.inf)  # the guard tripped: energy came from nowhere
             break
@@ -194,7 +194,7 @@ def test_explicit_euler_gains_energy():
 
 
 def test_implicit_euler_loses_energy():
-    e = _energy_track("implicit-euler")
+    e = _energy_track("implicit-euler", 10_000)  # it keeps 3 % of its energy by then
     assert np.all(np.diff(e) <= 1e-12 * e[0])  # monotone
     assert e[-1] < 0.5 * e[0], e[-1] / e[0]
 
