@@ -102,10 +102,11 @@ class Simulation:
         self.system: System = build_system(self.scene, self.model)
         if self.model.mesh is not None and self.system.self_collision:
             _warn_short_edges(self.scene, self.model)
-        if self.system.contact is not None and self.system.contact.self_on:
-            _warn_start_tangled(self.model, self.system.contact)
         if prepare is not None:
             prepare(self.model, self.system)
+        if self.system.contact is not None and self.system.contact.self_on:
+            # after `prepare`: a first run compiles its kernel beside the others
+            _warn_start_tangled(self.model, self.system.contact)
         self.omega_max, self.dt_max = stability_limit(self.model)
         self.integrator = self.scene.simulation.integrator
         auto = self.scene.simulation.fidelity == "auto"

@@ -102,12 +102,13 @@ ROBUST = ["pipeline.physics.contact:robust_contact",
 # self-contact, no pair visits): the meshes' pass and that kind's stages
 ROBUST_MESH = ROBUST + ["pipeline.physics.mesh_contact:mesh_colliders"]
 # the course's self-collision: its boxes pushed serially, or on the threads from
-# self_collision.PARALLEL_POINTS points on (selfCollision's 2500)
+# self_collision.PARALLEL_POINTS points on (selfCollision's 2500); robust self-contact: the
+# pair visits and the check for a cloth that starts crossing itself
 SELF = [[], ["pipeline.physics.self_collision:self_collide",
              "pipeline.physics.self_collision:_push_members"],
         ["pipeline.physics.self_collision:self_collide_in_chunks",
          "pipeline.physics.self_collision:_push_members"],
-        ROBUST + ["pipeline.physics.contact:_visit"],
+        ROBUST + ["pipeline.physics.contact:_visit", "pipeline.physics.contact:_tangles"],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:solid_stage"],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:sheet_stage"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",

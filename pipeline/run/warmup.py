@@ -154,8 +154,12 @@ COMPILE_SECONDS = {
     "pipeline.physics.mesh_forces:mesh_fem_diagonal": 1.0,
     "pipeline.physics.mesh_xpbd:solve_mesh_springs": 0.6,
     "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
-    "pipeline.physics.contact:robust_contact": 2.0,
-    "pipeline.physics.contact:_visit": 4.0,
+    # robust contact's, one cold process (2026-11-28, selfCollision at 20x20, CPU seconds with
+    # the linked callees: robust_contact 2.95, _visit 8.6, _tangles 2.25, robust_colliders
+    # 4.7, where the course kernels above took 0.45-0.75 of their estimates), scaled by 1.45
+    "pipeline.physics.contact:robust_contact": 4.3,
+    "pipeline.physics.contact:_visit": 12.5,
+    "pipeline.physics.contact:_tangles": 3.3,
     # VBD's (issue 44), one of each for every model and cloth: one cold process, CPU seconds
     # with the contact terms in the descent (2026-11-28: sphere.json _predict 1.35 s, with
     # self-contact's pair search about 2.4; _sweep 5.2; descend_in_chunks 1.26), not scaled
@@ -164,7 +168,7 @@ COMPILE_SECONDS = {
     "pipeline.physics.integrators.vbd:descend": 0.2,
     "pipeline.physics.integrators.vbd:descend_in_chunks": 1.2,
     "pipeline.physics.integrators.vbd:_velocities": 0.15,
-    "pipeline.physics.collider_contact:robust_colliders": 3.0,
+    "pipeline.physics.collider_contact:robust_colliders": 6.8,
     # robust contact's mesh colliders (issue 43), one cold process each, CPU seconds
     # (2026-11-28, the robust bowl and open bowl of benchmarks/contact.py), not scaled
     "pipeline.physics.mesh_contact:mesh_colliders": 0.6,
@@ -309,6 +313,11 @@ def sim_jobs(system) -> list[Job]:
     if not s.classic and isinstance(s.fem, FemParams):
         jobs.append(Job("pipeline.physics.fem:fem_filtered_jacobian_product",
                         (s.fem.x_rest, s.fem, x, f)))
+    if s.contact is not None and s.contact.self_on:  # the check for a start crossing itself
+        from pipeline.physics.contact import _tangles, tangles_arguments
+
+        jobs.append(Job.of(_tangles, tangles_arguments(s.x0, s.contact,
+                                                       np.zeros((1, 2), np.int64))))
     return jobs + [Job.of(p.dispatcher, p.argtypes) for p in kernel_pointers(s)]
 
 
