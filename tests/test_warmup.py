@@ -98,6 +98,8 @@ LOOPS = [(["pipeline.physics.colliders:_collide_serially"], ["pipeline.physics.c
 WINDS = [[], ["pipeline.physics.wind:add_wind_force", "pipeline.physics.wind:_band"]]
 ROBUST = ["pipeline.physics.contact:robust_contact",
           "pipeline.physics.collider_contact:robust_colliders"]
+# robust contact's stage 2 for a sphere or a box (absent for a plane)
+SOLID_FACES = "pipeline.physics.collider_contact:solid_faces"
 # robust contact's colliders with a solid or a one-sided mesh (a horizontal cloth: no
 # self-contact, no pair visits): the meshes' pass and that kind's stages
 ROBUST_MESH = ROBUST + ["pipeline.physics.mesh_contact:mesh_colliders"]
@@ -109,6 +111,9 @@ SELF = [[], ["pipeline.physics.self_collision:self_collide",
         ["pipeline.physics.self_collision:self_collide_in_chunks",
          "pipeline.physics.self_collision:_push_members"],
         ROBUST + ["pipeline.physics.contact:_visit", "pipeline.physics.contact:_tangles"],
+        ROBUST + ["pipeline.physics.contact:_visit", "pipeline.physics.contact:_tangles",
+                  SOLID_FACES],
+        ROBUST + [SOLID_FACES],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:solid_stage"],
         ROBUST_MESH + ["pipeline.physics.mesh_contact:sheet_stage"]]
 IMPLICIT = ["pipeline.physics.integrators.implicit_euler:solve_step",
@@ -209,6 +214,9 @@ def test_every_job_of_a_scene_has_an_estimate(tmp_path):
     for path, overrides in [(p, []) for p in sorted(SCENES.glob("*.json"))] + [
             (SCENES / "sphere.json", larger),
             (SCENES / "selfCollision.json", ["simulation.contact=robust"]),
+            (SCENES / "sphere.json", ["simulation.contact=robust"]),  # a solid's faces
+            (SCENES / "sphere.json", ["simulation.contact=robust",
+                                      "simulation.self_collision=true"]),
             (SCENES / "bowl.json", ["simulation.contact=robust"]),  # a solid mesh collider
             (SCENES / "bowl.json", ["simulation.contact=robust", "mesh.solid=false"])
     ] + _mesh_variants(tmp_path):

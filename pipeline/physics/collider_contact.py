@@ -396,18 +396,31 @@ def robust_colliders(x, x0, c, table):
         moved += _paths(x, x0, inv_mass, stats, kind, table.params, frame, k)
         if kind == plane.KIND:  # no solid: no edge through it once no point is
             continue
-        prm = table.params[k]
-        for r in range(FACE_ROUNDS + 1):  # the last round only looks
-            through, stuck = _faces(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind,
-                                    prm, frame, k, r < FACE_ROUNDS)
-            if through == 0:
-                break
-            moved += through
-        if through + stuck > 0:  # still in it after the rounds, or held in it by pins
-            stats[NOT_KEPT] += 1.0
-        pin = _pinned_inside(x, inv_mass, kind, table.params, frame, k)
-        if pin >= 0:
-            stats[NOT_KEPT] += 1.0
-            if stats[PIN_POINT] < 0.0:
-                stats[PIN_STEP], stats[PIN_POINT] = stats[6], float(pin)
+        moved += c.solid_pass(x, c.triangles, inv_mass, c.push, c.pushes, stats, kind,
+                              table.params, table.key_count, table.pivot, table.pose, k)
+    return moved
+
+
+@njit(cache=True, nogil=True, error_model="numpy", pointer=True)
+def solid_faces(x, triangles, inv_mass, push, pushes, stats, kind, params, key_count, pivot,
+                pose, k):
+    """Stage 2 for sphere or box collider k, then its pinned points' check; returns the
+    triangles moved. Called through a pointer (RobustContact.solid_pass), compiled only for
+    scenes with a sphere or a box (a plane's scene does not need it: 2 s of a first run)."""
+    frame = (key_count, pivot, pose)
+    prm = params[k]
+    moved = through = stuck = 0
+    for r in range(FACE_ROUNDS + 1):  # the last round only looks
+        through, stuck = _faces(x, triangles, inv_mass, push, pushes, stats, kind, prm, frame,
+                                k, r < FACE_ROUNDS)
+        if through == 0:
+            break
+        moved += through
+    if through + stuck > 0:  # still in it after the rounds, or held in it by pins
+        stats[NOT_KEPT] += 1.0
+    pin = _pinned_inside(x, inv_mass, kind, params, frame, k)
+    if pin >= 0:
+        stats[NOT_KEPT] += 1.0
+        if stats[PIN_POINT] < 0.0:
+            stats[PIN_STEP], stats[PIN_POINT] = stats[6], float(pin)
     return moved

@@ -42,7 +42,8 @@ from numba.core import types
 
 from clothjit import KernelPointer, njit
 
-from .collider_contact import FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP
+from .collider_contact import (FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP,
+                               solid_faces)
 from .ccd import (edge_edge_distance, edge_edge_impact, orient, point_triangle_distance,
                   point_triangle_impact)
 from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
@@ -112,6 +113,9 @@ class RobustContact(NamedTuple):
     mesh_pass: KernelPointer | None = None
     solid_stage: KernelPointer | None = None
     sheet_stage: KernelPointer | None = None
+    # collider_contact.solid_faces (a sphere's or box's stage 2), absent where the scene has
+    # neither
+    solid_pass: KernelPointer | None = None
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
     # of robust contact compiled 12 s with it linked there); None in the params it is handed
     visit: KernelPointer | None = None
@@ -119,10 +123,12 @@ class RobustContact(NamedTuple):
 
 def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                  rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
-                 self_on: bool = True, meshes: MeshContact | None = None) -> RobustContact:
+                 self_on: bool = True, meshes: MeshContact | None = None,
+                 solids: bool = True) -> RobustContact:
     """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N); without
     `self_on`, for the colliders' robust pass alone (no self-contact scratch); `meshes`:
-    the scene's mesh colliders (mesh_contact.pack_meshes), none by default."""
+    the scene's mesh colliders (mesh_contact.pack_meshes), none by default; `solids`:
+    whether the scene has a sphere or a box collider."""
     if meshes is None:
         meshes = pack_meshes((), rest.shape[1])
     # a writeable copy: a mesh's triangles are read-only, a type of its own to numba (every
@@ -152,8 +158,11 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros(m), stats, bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
+    solid = KernelPointer(solid_faces, (
+        field, tris, inv, c.push, c.pushes, stats, types.int64, field, types.int64[::1], field,
+        types.float64[:, :, ::1], types.int64), types.int64, present=bool(solids))
     c = c._replace(meshes=meshes, mesh_pass=passes[0], solid_stage=passes[1],
-                   sheet_stage=passes[2])
+                   sheet_stage=passes[2], solid_pass=solid)
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
 

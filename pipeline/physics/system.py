@@ -14,7 +14,7 @@ from numba.core import types
 from numba.extending import register_jitable, typeof_impl
 
 from clothjit import KernelPointer, njit
-from pipeline.scene import Scene
+from pipeline.scene import Box, Scene, Sphere
 
 from .colliders import ColliderTable, collide_all, max_surface_speed, pack_colliders
 from .collider_contact import robust_colliders
@@ -271,7 +271,8 @@ def robust_contact_of(scene: Scene, model: ClothModel) -> RobustContact | None:
         rest = np.ascontiguousarray(np.asarray(load_cloth_mesh(scene.cloth.mesh).points).T)
     return pack_contact(scene.cloth.thickness, scene.cloth.friction, model.triangles, rest,
                         model.point_mass, model.pinned, self_on=bool(scene.self_collision),
-                        meshes=pack_meshes(scene.colliders, model.n))
+                        meshes=pack_meshes(scene.colliders, model.n),
+                        solids=any(type(c) in (Sphere, Box) for c in scene.colliders))
 
 
 def slack_speed(thickness: float, frames_per_sec: float, self_collision: bool) -> float:

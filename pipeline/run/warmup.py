@@ -155,8 +155,8 @@ COMPILE_SECONDS = {
     "pipeline.physics.mesh_xpbd:solve_mesh_springs": 0.6,
     "pipeline.physics.mesh_xpbd:solve_mesh_fem": 1.7,
     # robust contact's, one cold process (2026-11-28, selfCollision at 20x20, CPU seconds with
-    # the linked callees: robust_contact 2.95, _visit 8.6, _tangles 2.25, robust_colliders
-    # 4.7, where the course kernels above took 0.45-0.75 of their estimates), scaled by 1.45
+    # the linked callees: robust_contact 2.95, _visit 8.6, _tangles 2.25, where the course
+    # kernels above took 0.45-0.75 of their estimates), scaled by 1.45
     "pipeline.physics.contact:robust_contact": 4.3,
     "pipeline.physics.contact:_visit": 12.5,
     "pipeline.physics.contact:_tangles": 3.3,
@@ -168,7 +168,11 @@ COMPILE_SECONDS = {
     "pipeline.physics.integrators.vbd:descend": 0.2,
     "pipeline.physics.integrators.vbd:descend_in_chunks": 1.2,
     "pipeline.physics.integrators.vbd:_velocities": 0.15,
-    "pipeline.physics.collider_contact:robust_colliders": 6.8,
+    # robust contact's colliders: one cold process (2026-11-28, sphere.json with
+    # self-collision, CPU seconds with the linked callees: robust_colliders 2.84, the
+    # sphere's and box's stage 2 3.28), scaled by 1.45 as robust contact's above
+    "pipeline.physics.collider_contact:robust_colliders": 4.1,
+    "pipeline.physics.collider_contact:solid_faces": 4.8,
     # robust contact's mesh colliders (issue 43), one cold process each, CPU seconds
     # (2026-11-28, the robust bowl and open bowl of benchmarks/contact.py), not scaled
     "pipeline.physics.mesh_contact:mesh_colliders": 0.6,
@@ -260,7 +264,7 @@ def kernel_pointers(system) -> list:
         pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]
     if system.contact is not None:  # robust contact's pair visits, its mesh colliders' passes
         c = system.contact
-        pointers += [c.visit, c.mesh_pass, c.solid_stage, c.sheet_stage]
+        pointers += [c.visit, c.mesh_pass, c.solid_stage, c.sheet_stage, c.solid_pass]
     return [p for p in pointers if p is not None and p.present]
 
 
