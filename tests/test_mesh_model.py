@@ -39,6 +39,10 @@ def cylinder_patch(rows: int = 9, cols: int = 12, radius: float = 0.3):
 
 
 def fem_of(points, tris, corner_uv, stretch=300.0, shear=30.0, bend=1e-3):
+    # read-only triangles, as a loaded mesh's: numba types a writeable array apart, and the
+    # FEM's kernels would compile again for these tests alone
+    tris = np.array(tris, dtype=np.int64)
+    tris.flags.writeable = False
     topo = topology(points, tris, corner_uv, True)
     params = mesh_fem(points, topo, stretch, shear, bend)
     return topo, with_rest_angles(params, np.ascontiguousarray(points.T))
