@@ -343,13 +343,13 @@ EXHAUSTIVE = 16  # free kernels; beyond, 2^k ways cost seconds per part
 
 
 def test_split_balances_the_two_processes():
-    """On every scene's kernels, all cold and 20 random parts of them (the rest cached):
+    """On every scene's kernels, all cold and 12 random parts of them (the rest cached):
     the split is within 4/3 of the best one (every way of sharing them, the linked callees
     here; searched where at most EXHAUSTIVE kernels are free: 2^k ways) and beats one
     process when it starts the helper."""
     rng, checks = random.Random(15), random.Random(16)
     for names in _scenes() + _mesh_scenes()[::5]:
-        parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(20)]
+        parts = [names] + [[n for n in names if rng.random() < 0.5] for _ in range(12)]
         for part in filter(None, parts):
             jobs = _jobs(part)
             free = [j for j in jobs if not j.linked]
