@@ -859,13 +859,15 @@ def segment_crosses_triangle(p, q, a, b, c):
 def tangles(x: np.ndarray, c: RobustContact, out: np.ndarray) -> int:
     """The edge-triangle crossings of the cloth at x (3, N), pairs sharing no point: their
     count, the first len(out) written to out as (edge, triangle) rows."""
-    return _tangles(*tangles_arguments(x, c, out))
+    kernel, arguments = tangles_call(x, c, out)
+    return kernel(*arguments)
 
 
-def tangles_arguments(x: np.ndarray, c: RobustContact, out: np.ndarray) -> tuple:
-    """_tangles' arguments (a first run compiles it from them: pipeline.run.warmup)."""
-    return (x, c.triangles, c.edges, c.anchor[3], c.box, c.bucket_start, c.bucket_work,
-            c.entries, c.entry_box, out)
+def tangles_call(x: np.ndarray, c: RobustContact, out: np.ndarray) -> tuple:
+    """(kernel, arguments) of `tangles` (a first run compiles the kernel for them:
+    pipeline.run.warmup)."""
+    return _tangles, (x, c.triangles, c.edges, c.anchor[3], c.box, c.bucket_start,
+                      c.bucket_work, c.entries, c.entry_box, out)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

@@ -252,7 +252,7 @@ def kernel_pointers(system) -> list:
     """The System's KernelPointers that its kernels call: the stepping kernels' passes
     (System.kernels), Provot's pre-pass and its passes, the colliders' point range and loop
     over the points, mesh projection, sweeps and keyframe poses, the wind's band and the
-    FEM's elements, robust contact's visits and mesh-collider passes (not the absent ones of
+    FEM's elements, robust contact's visits and colliders' passes (not the absent ones of
     passes the scene does not use)."""
     kernels = system.kernels
     pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
@@ -262,7 +262,7 @@ def kernel_pointers(system) -> list:
     if isinstance(system.fem, FemParams):  # absent for the classic grid; a mesh's (MeshFem)
         # has no element pointers
         pointers += [system.fem.triangles, system.fem.hinges, system.fem.bands]
-    if system.contact is not None:  # robust contact's pair visits, its mesh colliders' passes
+    if system.contact is not None:  # robust contact's pair visits, its colliders' passes
         c = system.contact
         pointers += [c.visit, c.mesh_pass, c.solid_stage, c.sheet_stage, c.solid_pass]
     return [p for p in pointers if p is not None and p.present]
@@ -318,10 +318,9 @@ def sim_jobs(system) -> list[Job]:
         jobs.append(Job("pipeline.physics.fem:fem_filtered_jacobian_product",
                         (s.fem.x_rest, s.fem, x, f)))
     if s.contact is not None and s.contact.self_on:  # the check for a start crossing itself
-        from pipeline.physics.contact import _tangles, tangles_arguments
+        from pipeline.physics.contact import tangles_call
 
-        jobs.append(Job.of(_tangles, tangles_arguments(s.x0, s.contact,
-                                                       np.zeros((1, 2), np.int64))))
+        jobs.append(Job.of(*tangles_call(s.x0, s.contact, np.zeros((1, 2), np.int64))))
     return jobs + [Job.of(p.dispatcher, p.argtypes) for p in kernel_pointers(s)]
 
 
