@@ -124,11 +124,12 @@ class RobustContact(NamedTuple):
 def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                  rest: np.ndarray, mass: np.ndarray, pinned: np.ndarray,
                  self_on: bool = True, meshes: MeshContact | None = None,
-                 solids: bool = True) -> RobustContact:
+                 solids: bool = False) -> RobustContact:
     """RobustContact for a cloth of `triangles` (T, 3) at rest in `rest` (3, N); without
     `self_on`, for the colliders' robust pass alone (no self-contact scratch); `meshes`:
     the scene's mesh colliders (mesh_contact.pack_meshes), none by default; `solids`:
-    whether the scene has a sphere or a box collider."""
+    whether the scene has a sphere or a box collider (none by default: their stage's
+    kernel is compiled only where it is)."""
     if meshes is None:
         meshes = pack_meshes((), rest.shape[1])
     # a writeable copy: a mesh's triangles are read-only, a type of its own to numba (every
