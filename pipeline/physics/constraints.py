@@ -5,7 +5,9 @@ can need a correction: a pre-pass (parallel on large cloths) marks, in a 6-bit m
 point, the springs longer than (slightly less than) their limit; every correction then
 marks the later springs that share a moved point, since their lengths changed. An unmarked
 spring has the same endpoints as in the pre-pass, so skipping it is exactly what the full
-walk would do.
+walk would do. Where many springs are long (a fine grid whose neighbours self-collision
+pushes apart: about a tenth of them shortened every step), the marking costs more than it
+skips, and the walk visits every spring in order, as the course does (DENSE_SHARE).
 """
 from __future__ import annotations
 
@@ -19,6 +21,11 @@ from clothjit import KernelPointer, njit, prange
 from .forces import CHUNKS, PARALLEL_POINTS, _chunk
 
 STRETCH_LIMIT = 1.1  # a spring may reach 110 % of its rest length
+# after a walk that shortened at least one in DENSE_SHARE of the springs, the next visits
+# every spring, with no pre-pass and no marking: one thread, a 100x100 selfCollision
+# (a tenth shortened) steps 5-7 % faster so, a hanging 200x200 cloth (a twentieth) 20 %
+# slower
+DENSE_SHARE = 12
 
 
 def stretch_limits(rest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -46,6 +53,7 @@ class CandidateMask(NamedTuple):
     long: np.ndarray  # (6, N) bool: spring (d, p) may be longer than its limit
     flag: KernelPointer  # _flag_long
     pack: KernelPointer  # _pack_mask
+    walk: np.ndarray  # (1,) int64: the next walk visits every spring (1) or the marked (0)
     # the pre-pass (_mark_serially or _mark_in_chunks, by the cloth's size:
     # forces.PARALLEL_POINTS; limit_stretch compiles in 0.8-1.0 s without the parallel loop
     # linked, 1.6-1.9 s with it); None inside it
@@ -60,7 +68,7 @@ def candidate_mask(n: int, present: bool = True) -> CandidateMask:
                                       index, index), present=present)
     pack = KernelPointer(_pack_mask, (long, types.uint8[::1], mask, index, index),
                          present=present)
-    scratch = CandidateMask(mask, long, flag, pack)
+    scratch = CandidateMask(mask, long, flag, pack, np.zeros(1, dtype=np.int64))
     loop = _mark_in_chunks if n >= PARALLEL_POINTS else _mark_serially
     mark = KernelPointer(loop, (field, types.int64[::1], types.uint8[::1], field, scratch),
                          present=present)
@@ -96,7 +104,7 @@ def _pack_mask(long, exist_bits, mask, lo, hi):
 @njit(cache=True, nogil=True, no_cpython_wrapper=True, pointer=True)
 def _mark_serially(x, offsets, exist_bits, limit_sq_lo, scratch):
     """The pre-pass over every point in one call of each pass."""
-    mask, long, flag, pack, _ = scratch
+    mask, long, flag, pack = scratch[:4]
     n = x.shape[1]
     for d in range(6):
         flag(x, offsets[d], limit_sq_lo[d], long[d], 0, n)
@@ -106,7 +114,7 @@ def _mark_serially(x, offsets, exist_bits, limit_sq_lo, scratch):
 @njit(cache=True, nogil=True, parallel=True, no_cpython_wrapper=True, pointer=True)
 def _mark_in_chunks(x, offsets, exist_bits, limit_sq_lo, scratch):
     """The pre-pass over chunks of points in parallel."""
-    mask, long, flag, pack, _ = scratch
+    mask, long, flag, pack = scratch[:4]
     n = x.shape[1]
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
@@ -153,6 +161,27 @@ def shorten(x, p, q, dx, dy, dz, length, lim, pa, pb):
         x[2, p] += cz
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _limit_spring(x, p, d, offsets, limit, limit_sq_lo, pinned):
+    """Shorten spring (d, p) to its limit if longer (shorten). Returns 0 if it was not
+    shortened, else 1 plus 2 if its end p is pinned plus 4 if its other end is."""
+    q = p + offsets[d]
+    dx = x[0, q] - x[0, p]
+    dy = x[1, q] - x[1, p]
+    dz = x[2, q] - x[2, p]
+    length_sq = dx * dx + dy * dy + dz * dz
+    if length_sq <= limit_sq_lo[d, p]:
+        return 0
+    length = np.sqrt(length_sq)
+    lim = limit[d, p]
+    pa = pinned[p] != 0
+    pb = pinned[q] != 0
+    if not length > lim or (pa and pb):
+        return 0
+    shorten(x, p, q, dx, dy, dz, length, lim, pa, pb)
+    return 1 + 2 * pa + 4 * pb
+
+
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
       pointer=True)
 def limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
@@ -160,35 +189,37 @@ def limit_stretch(x, springs, exist_bits, limit, limit_sq_lo, pinned, scratch):
 
     Half the correction goes to each end, all of it to the free end if one end is pinned,
     none if both are. `springs` is System.springs (the grid's: offsets first), `scratch`
-    comes from candidate_mask. Without numba's reference counts (`_nrt=False`: nothing here
-    allocates): numba counted the arrays of every inlined `_mark_after`, atomic updates that
-    made the walk 2.6x as long.
+    comes from candidate_mask. The walk visits the marked springs (see above), or every
+    spring after a walk that shortened many (DENSE_SHARE): the same corrections either
+    way. Without numba's reference counts (`_nrt=False`: nothing here allocates): numba
+    counted the arrays of every inlined `_mark_after`, atomic updates that made the walk
+    2.6x as long.
     """
     offsets = springs[0]
     n = x.shape[1]
-    scratch.mark(x, offsets, exist_bits, limit_sq_lo, CandidateMask(*scratch[:-1], None))
-    mask = scratch.mask
-    for p in range(n):
-        if mask[p] == 0:
-            continue
-        for d in range(6):
-            if not (mask[p] >> d) & 1:
+    shortened = 0
+    if scratch.walk[0]:
+        for p in range(n):
+            bits = exist_bits[p]
+            for d in range(6):
+                if (bits >> d) & 1:
+                    shortened += _limit_spring(x, p, d, offsets, limit, limit_sq_lo,
+                                               pinned) != 0
+    else:
+        scratch.mark(x, offsets, exist_bits, limit_sq_lo, CandidateMask(*scratch[:-1], None))
+        mask = scratch.mask
+        for p in range(n):
+            if mask[p] == 0:
                 continue
-            q = p + offsets[d]
-            dx = x[0, q] - x[0, p]
-            dy = x[1, q] - x[1, p]
-            dz = x[2, q] - x[2, p]
-            length_sq = dx * dx + dy * dy + dz * dz
-            if length_sq <= limit_sq_lo[d, p]:
-                continue
-            length = np.sqrt(length_sq)
-            lim = limit[d, p]
-            pa = pinned[p] != 0
-            pb = pinned[q] != 0
-            if not length > lim or (pa and pb):
-                continue
-            shorten(x, p, q, dx, dy, dz, length, lim, pa, pb)
-            if not pa:
-                _mark_after(p, p, d, offsets, exist_bits, mask)
-            if not pb:
-                _mark_after(q, p, d, offsets, exist_bits, mask)
+            for d in range(6):
+                if not (mask[p] >> d) & 1:
+                    continue
+                done = _limit_spring(x, p, d, offsets, limit, limit_sq_lo, pinned)
+                if done == 0:
+                    continue
+                shortened += 1
+                if not done & 2:
+                    _mark_after(p, p, d, offsets, exist_bits, mask)
+                if not done & 4:
+                    _mark_after(p + offsets[d], p, d, offsets, exist_bits, mask)
+    scratch.walk[0] = DENSE_SHARE * shortened >= 6 * n

@@ -255,8 +255,9 @@ def kernel_pointers(system) -> list:
     FEM's elements, robust contact's visits and colliders' passes (not the absent ones of
     passes the scene does not use)."""
     kernels = system.kernels
-    pointers = [*kernels._replace(springs=None), *kernels.springs, *system.mask[2:],
-                *_table_pointers(system.colliders)]
+    mask = system.mask
+    pointers = [*kernels._replace(springs=None), *kernels.springs, mask.flag, mask.pack,
+                mask.mark, *_table_pointers(system.colliders)]
     if system.wind is not None and hasattr(system.wind, "band"):  # a mesh's wind has none
         pointers.append(system.wind.band)
     if isinstance(system.fem, FemParams):  # absent for the classic grid; a mesh's (MeshFem)
