@@ -198,7 +198,8 @@ def _local(x, y, inertia, el, cn, p):
     if not (cn.colliders or cn.self_on):
         return terms, np.inf
     # a call of its own: without contact the loops above stay as lean as before
-    _, clear, terms = contact_terms(x, inertia, cn, p, terms, False, 0.0, 0.0, 0.0)
+    # np.bool_, not a literal: numba compiles a kernel once per literal argument
+    _, clear, terms = contact_terms(x, inertia, cn, p, terms, np.bool_(False), 0.0, 0.0, 0.0)
     return terms, clear
 
 
@@ -233,7 +234,8 @@ def _update_point(x, y, inertia, el, cn, p, line_search):
     if not ok:
         return
     if sx * sx + sy * sy + sz * sz >= clear * clear:  # it may enter a contact
-        entering, _, (_, g, h) = contact_terms(x, inertia, cn, p, terms, True, sx, sy, sz)
+        entering, _, (_, g, h) = contact_terms(x, inertia, cn, p, terms, np.bool_(True), sx,
+                                               sy, sz)
         if entering:  # h only gained positive semi-definite blocks: still regular
             sx, sy, sz = _newton(g, h)[1:]
     px, py, pz = x[0, p], x[1, p], x[2, p]
