@@ -53,29 +53,58 @@ def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
         _spring_pass(x, ends[0], ends[1], rest, stiffness, buffer, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        for p in range(lo, hi):
-            m = mass[p]
-            f[0, p], f[1, p], f[2, p] = _signed_sum(buffer, start, code, p, m * gravity[0],
-                                                    m * gravity[1], m * gravity[2])
+        for p in range(lo, hi, 2):  # two points at a time (_signed_sums)
+            q = min(p + 1, hi - 1)  # an odd chunk's last point twice: the same sum twice
+            mp, mq = mass[p], mass[q]
+            fp, fq = _signed_sums(buffer, start, code, p, q,
+                                  (mp * gravity[0], mp * gravity[1], mp * gravity[2]),
+                                  (mq * gravity[0], mq * gravity[1], mq * gravity[2]))
+            f[0, p], f[1, p], f[2, p] = fp
+            f[0, q], f[1, q], f[2, q] = fq
+
+
+@njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
+def _signed(buffer, code, j):
+    """Spring column j of a point's incidence (MeshSprings.code) times its sign: -1 where the
+    point is the spring's b end (adding -1 times it has the bits of subtracting it)."""
+    e = np.uint64(code[j])
+    s = e >> np.uint64(1)
+    sign = 1.0 - 2.0 * np.float64(e & np.uint64(1))
+    return sign * buffer[0, s], sign * buffer[1, s], sign * buffer[2, s]
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
-def _signed_sum(buffer, start, code, p, fx, fy, fz):
-    """(fx, fy, fz) plus buffer's column of each spring at point p (MeshSprings.code),
-    subtracted where p is the spring's b end (the same bits as adding -1 times it)."""
-    for j in range(np.uint64(start[p]), np.uint64(start[p + 1])):
-        e = np.uint64(code[j])
-        s = e >> np.uint64(1)
-        bx, by, bz = buffer[0, s], buffer[1, s], buffer[2, s]
-        if e & np.uint64(1):
-            fx -= bx
-            fy -= by
-            fz -= bz
-        else:
-            fx += bx
-            fy += by
-            fz += bz
-    return fx, fy, fz
+def _signed_sums(buffer, start, code, p, q, fp, fq):
+    """(fp, fq) plus buffer's column of each spring at point p and at q (_signed), in each
+    point's incidence order: the two sums in one loop, two chains of additions that the
+    CPU overlaps (one sum at a time waited on each addition)."""
+    px, py, pz = fp
+    qx, qy, qz = fq
+    i, i_end = np.uint64(start[p]), np.uint64(start[p + 1])
+    j, j_end = np.uint64(start[q]), np.uint64(start[q + 1])
+    one = np.uint64(1)
+    while i < i_end and j < j_end:
+        ax, ay, az = _signed(buffer, code, i)
+        bx, by, bz = _signed(buffer, code, j)
+        px += ax
+        py += ay
+        pz += az
+        qx += bx
+        qy += by
+        qz += bz
+        i += one
+        j += one
+    for k in range(i, i_end):
+        ax, ay, az = _signed(buffer, code, k)
+        px += ax
+        py += ay
+        pz += az
+    for k in range(j, j_end):
+        bx, by, bz = _signed(buffer, code, k)
+        qx += bx
+        qy += by
+        qz += bz
+    return (px, py, pz), (qx, qy, qz)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -340,9 +369,11 @@ def mesh_spring_product(y, springs, unit, alpha, buffer, out):
             buffer[2, s] = 0.0 if w < 0.0 else (k - w) * along * uz + w * rz
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        for p in range(lo, hi):
-            out[0, p], out[1, p], out[2, p] = _signed_sum(buffer, start, code, p, 0.0, 0.0,
-                                                          0.0)
+        for p in range(lo, hi, 2):  # two points at a time (_signed_sums)
+            q = min(p + 1, hi - 1)
+            fp, fq = _signed_sums(buffer, start, code, p, q, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
+            out[0, p], out[1, p], out[2, p] = fp
+            out[0, q], out[1, q], out[2, q] = fq
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
