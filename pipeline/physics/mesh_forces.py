@@ -53,14 +53,10 @@ def mesh_spring_forces(x, springs, mass, gravity, buffer, f):
         _spring_pass(x, ends[0], ends[1], rest, stiffness, buffer, lo, hi)
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        for p in range(lo, hi, 2):  # two points at a time (_signed_sums)
-            q = min(p + 1, hi - 1)  # an odd chunk's last point twice: the same sum twice
-            mp, mq = mass[p], mass[q]
-            fp, fq = _signed_sums(buffer, start, code, p, q,
-                                  (mp * gravity[0], mp * gravity[1], mp * gravity[2]),
-                                  (mq * gravity[0], mq * gravity[1], mq * gravity[2]))
-            f[0, p], f[1, p], f[2, p] = fp
-            f[0, q], f[1, q], f[2, q] = fq
+        for p in range(lo, hi):
+            m = mass[p]
+            f[0, p], f[1, p], f[2, p] = m * gravity[0], m * gravity[1], m * gravity[2]
+        _add_signed_sums(buffer, start, code, f, lo, hi)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", forceinline=True, no_cpython_wrapper=True)
@@ -71,6 +67,18 @@ def _signed(buffer, code, j):
     s = e >> np.uint64(1)
     sign = 1.0 - 2.0 * np.float64(e & np.uint64(1))
     return sign * buffer[0, s], sign * buffer[1, s], sign * buffer[2, s]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
+def _add_signed_sums(buffer, start, code, out, lo, hi):
+    """out[:, p] plus buffer's column of each spring at point p (_signed), in p's incidence
+    order, for p in [lo, hi): two points at a time (_signed_sums)."""
+    for p in range(lo, hi, 2):
+        q = min(p + 1, hi - 1)  # an odd run's last point twice: the same sum twice
+        fp, fq = _signed_sums(buffer, start, code, p, q, (out[0, p], out[1, p], out[2, p]),
+                              (out[0, q], out[1, q], out[2, q]))
+        out[0, p], out[1, p], out[2, p] = fp
+        out[0, q], out[1, q], out[2, q] = fq
 
 
 @njit(cache=True, nogil=True, error_model="numpy", no_cpython_wrapper=True)
@@ -369,11 +377,8 @@ def mesh_spring_product(y, springs, unit, alpha, buffer, out):
             buffer[2, s] = 0.0 if w < 0.0 else (k - w) * along * uz + w * rz
     for c in prange(CHUNKS):
         lo, hi = _chunk(c, n)
-        for p in range(lo, hi, 2):  # two points at a time (_signed_sums)
-            q = min(p + 1, hi - 1)
-            fp, fq = _signed_sums(buffer, start, code, p, q, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
-            out[0, p], out[1, p], out[2, p] = fp
-            out[0, q], out[1, q], out[2, q] = fq
+        out[:, lo:hi] = 0.0
+        _add_signed_sums(buffer, start, code, out, lo, hi)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
