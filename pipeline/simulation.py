@@ -15,6 +15,7 @@ from pipeline.physics.errors import (DivergenceError, SelfCollisionWarning, Stab
                                      StartTangledWarning)
 from pipeline.physics.contact import with_room
 from pipeline.physics.integrators import integrator_module
+from pipeline.physics.limit_reach import LimitStop, beyond_reach, limit_reach
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
 from pipeline.physics.system import System, build_system, stability_limit
@@ -28,6 +29,17 @@ def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> Cl
     model = build_model(scene, initial_positions)
     resolve_start_inside(scene, model)
     return model
+
+
+def _limit_reach_of(system: System):
+    """The LimitReach of a mesh cloth whose keyframed pins may pull beyond Provot's limit
+    under robust contact (contact comes first: the limit stops there), else None."""
+    s = system
+    if s.contact is None or not s.stretch_limit or s.pin_motion is None:
+        return None
+    structural = s.springs.structural
+    return limit_reach(s.pinned, s.springs.ends[:, :structural], s.limit[0, :structural],
+                       s.pin_motion)
 
 
 def _warn_short_edges(scene: Scene, model: ClothModel) -> None:
@@ -119,6 +131,11 @@ class Simulation:
         module = integrator_module(self.integrator)
         self._state = module.State(self.system)
         self.step_count = 0
+        #: the keyframed pins Provot's limit is watched against (limit_reach) until it
+        #: stops, where they leave it no state; None when not watched
+        self.limit_watch = _limit_reach_of(self.system)
+        #: where it stopped (LimitStop), None while it runs
+        self.limit_stop: LimitStop | None = None
         self.step_limited = module.CONDITIONALLY_STABLE
         #: the frame-by-frame controller of fidelity "auto" (pipeline.fidelity.controller), else None
         self.stepper = None
@@ -216,6 +233,26 @@ class Simulation:
         if self.stepper is not None:
             raise ValueError("under fidelity auto the steps are chosen per frame: use advance()")
         adjust_threads()
+        spf = self.system.steps_per_frame
+        while self.limit_watch is not None and steps > 0:  # frame by frame until it stops
+            run = min(steps, spf - self.step_count % spf)
+            self._check_limit((self.step_count + run + spf - 1) // spf)
+            self._steps(run)
+            steps -= run
+        if steps > 0:
+            self._steps(steps)
+
+    def _check_limit(self, frame: int) -> None:
+        """Stop Provot's limit if the pins end frame `frame` beyond its reach."""
+        t = frame / self.scene.simulation.frames_per_sec
+        beyond = beyond_reach(self.limit_watch, self.system.x0, t)
+        if beyond is not None:
+            p, q, distance, reach = beyond
+            self.limit_stop = LimitStop(frame, t, (p, q), distance, reach)
+            self.system = self.system._replace(stretch_limit=False)
+            self.limit_watch = None
+
+    def _steps(self, steps: int) -> None:
         done, kinetic, bound = self._state.advance(self.system, steps, self.step_count)
         self.step_count += done
         self.make_contact_room()
@@ -236,6 +273,8 @@ class Simulation:
         if self.stepper is not None:
             for _ in range(frames):
                 adjust_threads()
+                if self.limit_watch is not None:
+                    self._check_limit(self.stepper.frame + 1)
                 self.stepper.advance_frame()
             return
         # in runs of about LOOK_EVERY seconds, so that the threads may follow the load between

@@ -7,6 +7,7 @@ that one worker compiles robust contact's kernels once."""
 from __future__ import annotations
 
 import dataclasses
+import json
 import importlib.util
 import sys
 from pathlib import Path
@@ -564,3 +565,81 @@ def test_points_inside_a_solid_mesh_go_out_to_its_nearest_surface(tmp_path):
     assert c.stats[MOVED_OUT] == 2 and c.stats[PIN_POINT] == 3
     v = CC.collider_violations(x.T, NO_EDGES, [obj], 0.0, np.array([3]))
     assert v["inside"] == 0
+
+
+def _pulled_strip(tmp_path, contact: str) -> dict:
+    """A horizontal 1 m x 0.1 m mesh strip of 11 x 2 points, its left end held still and its
+    right end carried away along the strip at 0.35 m/s (60 fps)."""
+    from test_mesh_cloth import horizontal_grid_obj, mesh_scene
+
+    scene = mesh_scene(horizontal_grid_obj(tmp_path, 11, 2, 1.0, 0.1),
+                       pinned=[0, 11, {"indices": [10, 21], "keyframes": [
+                           {"time": 0.0}, {"time": 1.0, "translation": [0.35, 0.0, 0.0]}]}])
+    scene["simulation"].update(contact=contact, frames_per_sec=60, steps_per_frame=10)
+    return scene
+
+
+def test_provots_limit_stops_where_the_pins_pull_beyond_its_reach(tmp_path, capsys):
+    """Under the limit the strip's ends can be at most 1.1 x 1 m apart (ten springs of 0.1 m
+    along a row). The pins pass 1.1 m at t = 0.1 / 0.35 = 0.2857 s, inside frame 18 (t_17
+    = 0.2833 s): robust contact stops the limit from that frame and says which points; the
+    course contact keeps it (its behaviour unchanged). Stepping frame by frame or in one
+    call gives the same positions."""
+    sim = Simulation(_pulled_strip(tmp_path, "robust"))
+    assert sim.limit_stop is None and sim.limit_watch is not None
+    sim.advance(17)
+    assert sim.limit_stop is None and sim.system.stretch_limit
+    sim.advance(1)
+    stop = sim.limit_stop
+    assert stop.frame == 18 and stop.time == pytest.approx(0.3)
+    assert stop.points == (0, 10)  # the first row's ends (the second row's are as far)
+    assert stop.distance == pytest.approx(1.0 + 0.35 * 0.3, abs=1e-12)
+    assert stop.reach == pytest.approx(1.1, abs=1e-12)
+    assert not sim.system.stretch_limit and sim.limit_watch is None
+    sim.advance(12)
+    again = Simulation(_pulled_strip(tmp_path, "robust"))
+    again.step(7)
+    again.step(293)  # across the frame boundaries, unevenly
+    assert np.array_equal(again.positions, sim.positions)
+    assert again.limit_stop == stop
+    # the springs alone hold the strip now: its first row is longer than the limit allows
+    row = sim.positions[:11]
+    assert np.linalg.norm(np.diff(row, axis=0), axis=1).sum() > 1.1
+    course = Simulation(_pulled_strip(tmp_path, "course"))
+    course.advance(30)
+    assert course.limit_watch is None and course.limit_stop is None
+    assert course.system.stretch_limit
+
+    from pipeline.cli import main
+
+    scene = tmp_path / "strip.json"
+    scene.write_text(json.dumps(_pulled_strip(tmp_path, "robust")))
+    assert main([str(scene), "--duration", "0.4", "--out", str(tmp_path / "s.gif")]) == 0
+    assert ("Provot's stretch limit stopped from frame 18: at t = 0.300 s the pins hold "
+            "points 0 and 10 1.105 m apart, beyond the 1.1 m") in capsys.readouterr().err
+
+
+def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
+    """Four large parallel triangles 0.4 h apart, still: one round's pushes, averaged per
+    point, leave the inner layers where their pairs above and below push them both ways
+    (0.47 h from another layer after it, 0.73 h after the rounds); the rounds repeated while a pair is closer than half the
+    thickness leave every point more than half of it from every other layer, the layers in
+    their order."""
+    h, layers = 0.01, 4
+    points, rest, tris = [], [], []
+    for k in range(layers):
+        for x, z in ((-1.0, -1.0), (1.0, -1.0), (0.0, 1.0)):
+            points.append((x, 0.4 * h * k, z))
+            rest.append((x + 3.0 * k, 0.0, z))  # apart at rest: every pair is checked
+        tris.append((3 * k, 3 * k + 1, 3 * k + 2))
+    x0 = np.ascontiguousarray(np.array(points).T)
+    x1 = x0.copy()
+    c = pack_contact(h, 0.0, np.array(tris), np.ascontiguousarray(np.array(rest).T),
+                     np.ones(3 * layers), np.zeros(3 * layers, np.uint8))
+    robust_contact(x1, x0, c)
+    # every point's distance to every other layer (the checker's), and the layers' order
+    p = x1.T
+    gaps = [crossings.point_triangle_distance(p[i][None], *(p[[j]] for j in tris[k]))[0] / h
+            for i in range(3 * layers) for k in range(layers) if i // 3 != k]
+    assert min(gaps) > 0.5 and c.stats[2] == 0  # without a CCD stop
+    assert np.all(np.diff([p[3 * k:3 * k + 3, 1].mean() for k in range(layers)]) > 0)

@@ -383,6 +383,8 @@ def _execute(args, err, scene, plan, sim, writers, golden, render_frame, scene_m
         from pipeline.physics.contact import contact_summary
 
         notes.append(contact_summary(sim.system.contact, sim.system.steps_per_frame))
+    if sim.limit_stop is not None:
+        notes.append(sim.limit_stop.note)
     return finish(args, err, plan, writers, golden, timers, t_wall, notes)
 
 

@@ -174,6 +174,9 @@ def make_plan(sim) -> Plan:
         self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "
                           f"kept {scene.cloth.thickness:g} m apart, continuous collision "
                           "detection and a fail-safe (the cloth never passes through itself)")
+        if sim.limit_stop is None and sim.limit_watch is not None:
+            self_collision += ("; Provot's limit stops if the keyframed pins pull two points "
+                               "beyond its reach (no state keeps it then)")
     elif not sim.system.self_collision:
         self_collision = "off" + (" (horizontal cloth)" if s.self_collision == "auto" else "")
     elif auto:

@@ -11,6 +11,8 @@ rest:
    normal at impact, on the side it came from; one closer than h at x1 is pushed apart to
    h (inelastic repulsion), with friction: its relative tangential motion over the step
    shrinks by at most `friction` times the push. The moves are averaged per point (Jacobi);
+   while a round finds a pair closer than DEEP_GAP h, it is repeated (PROXIMITY_ROUNDS
+   more at most);
 2. if anything moved, rounds of CCD alone until one finds no meeting (CCD_ROUNDS at most);
 3. fail-safe: while any pair still meets, every free point of every such pair goes back
    to x0 (moves no further this step). x0 has no crossing, so this ends, at worst with
@@ -50,6 +52,10 @@ from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 from .self_collision import cell_hash
 
 CCD_ROUNDS = 4
+# a pair found closer than DEEP_GAP h: up to PROXIMITY_ROUNDS more rounds of proximity (the
+# averaged pushes of one round fall short where layers are pressed together, as in a cloth
+# wrung into a rope)
+DEEP_GAP, PROXIMITY_ROUNDS = 0.75, 4
 # the candidate list: every pair within h plus its skins at its making, good while no point
 # has moved further than its skin from there (then no pair outside can have come within h,
 # nor meet on the straight paths of a step inside that range). A point's skin, in h: SKIN
@@ -105,6 +111,7 @@ class RobustContact(NamedTuple):
     #                     (row 3, see SKIN)
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
+    deep: np.ndarray  # (1,) int64 scratch: pairs a proximity round found closer than DEEP_GAP h
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     meshes: MeshContact | None = None  # the mesh colliders' triangles (none: no rows)
     # mesh_contact.mesh_colliders and its stages for solid and one-sided meshes, through
@@ -156,7 +163,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((9, 4 * size)), np.zeros(4), np.zeros((BATCH, 5), np.int64),
                       np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
                       np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
-                      np.zeros(m), stats, bool(self_on))
+                      np.zeros(m), stats, np.zeros(1, np.int64), bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
     solid = KernelPointer(solid_faces, (
@@ -703,6 +710,7 @@ def _pair(x0, x1, c, mode, ids):
             return 0
         c.stats[1] += 1.0
         c.stats[5] = min(c.stats[5], d / h)
+        c.deep[0] += d < DEEP_GAP * h
         _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d,
                  np.bool_(True))  # not literals: one _respond for both
         return 1
@@ -941,9 +949,17 @@ def robust_contact(x, x0, c):
     # the modes are passed as np.int64, not literals: numba compiles a kernel once per
     # literal argument (_round three times, seconds each)
     # one visit for both: CCD where a pair meets within the step, else proximity
+    c.deep[0] = 0
     if _round(start, x, c, visit, np.int64(0)) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
+    for _ in range(PROXIMITY_ROUNDS):
+        if c.deep[0] == 0:
+            break
+        c.deep[0] = 0
+        if _round(start, x, c, visit, np.int64(0)) == 0:
+            break
+        _apply(x, c)
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
         if _round(start, x, c, visit, np.int64(1)) == 0:
