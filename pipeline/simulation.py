@@ -322,6 +322,10 @@ class Simulation:
         advice = (self.stability_message() if self.step_limited and self.system.dt > self.dt_max else
                   "use a larger simulation.steps_per_frame or a smaller "
                   + ("cloth.fem.stretch" if self.model.fem is not None else "cloth.ks"))
+        if self.limit_stop is not None:  # the limit had kept the springs' explicit steps in check
+            advice = (f"Provot's stretch limit stopped at frame {self.limit_stop.frame} (the "
+                      "pins pull beyond its reach) and the springs alone hold the cloth; "
+                      f'{advice}, or simulation.integrator "implicit-euler" or "vbd"')
         return (f"simulation diverged at frame {frame + 1}, step {step_in_frame + 1} of "
                 f"{spf} (t = {self.time:.4f} s): {what}; {advice}")
 

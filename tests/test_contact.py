@@ -619,23 +619,31 @@ def test_provots_limit_stops_where_the_pins_pull_beyond_its_reach(tmp_path, caps
             "points 0 and 10 1.105 m apart, beyond the 1.1 m") in capsys.readouterr().err
 
 
-def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
-    """Four large parallel triangles 0.4 h apart, still: one round's pushes, averaged per
-    point, leave the inner layers where their pairs above and below push them both ways
-    (0.47 h from another layer after it, 0.73 h after the rounds); the rounds repeated while a pair is closer than half the
-    thickness leave every point more than half of it from every other layer, the layers in
-    their order."""
-    h, layers = 0.01, 4
+def _stack(layers: int, gap: float, h: float):
+    """`layers` large parallel triangles `gap` h apart, still, apart at rest (every pair is
+    checked): (x0, x1, contact, triangles)."""
     points, rest, tris = [], [], []
     for k in range(layers):
         for x, z in ((-1.0, -1.0), (1.0, -1.0), (0.0, 1.0)):
-            points.append((x, 0.4 * h * k, z))
-            rest.append((x + 3.0 * k, 0.0, z))  # apart at rest: every pair is checked
+            points.append((x, gap * h * k, z))
+            rest.append((x + 3.0 * k, 0.0, z))
         tris.append((3 * k, 3 * k + 1, 3 * k + 2))
     x0 = np.ascontiguousarray(np.array(points).T)
-    x1 = x0.copy()
     c = pack_contact(h, 0.0, np.array(tris), np.ascontiguousarray(np.array(rest).T),
                      np.ones(3 * layers), np.zeros(3 * layers, np.uint8))
+    return x0, x0.copy(), c, tris
+
+
+def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
+    """Four large parallel triangles 0.4 h apart, still: one round's pushes, averaged per
+    point, leave the inner layers where their pairs above and below push them both ways
+    (0.47 h from another layer after it, 0.73 h after the rounds); the rounds repeated
+    while a pair is closer than 3/4 of the thickness leave every point more than half of
+    it from every other layer, the layers in their order."""
+    from pipeline.physics.contact import PRESSED
+
+    h, layers = 0.01, 4
+    x0, x1, c, tris = _stack(layers, 0.4, h)
     robust_contact(x1, x0, c)
     # every point's distance to every other layer (the checker's), and the layers' order
     p = x1.T
@@ -643,3 +651,16 @@ def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
             for i in range(3 * layers) for k in range(layers) if i // 3 != k]
     assert min(gaps) > 0.5 and c.stats[2] == 0  # without a CCD stop
     assert np.all(np.diff([p[3 * k:3 * k + 3, 1].mean() for k in range(layers)]) > 0)
+    assert c.stats[PRESSED] == 0
+
+
+def test_layers_the_rounds_cannot_part_are_reported():
+    """Ten layers 0.1 h apart: the rounds run out with pairs still closer than half the
+    thickness, and the summary says from which frame and what to do."""
+    from pipeline.physics.contact import PRESSED, PRESSED_STEP
+
+    x0, x1, c, _ = _stack(10, 0.1, 0.01)
+    robust_contact(x1, x0, c)
+    assert c.stats[PRESSED] == 1 and c.stats[PRESSED_STEP] == 1
+    assert ("from frame 1, 1 steps ended with layers still pressed closer than 0.5 x "
+            "thickness after 5 rounds of pushes") in contact_summary(c, 10)

@@ -56,6 +56,7 @@ CCD_ROUNDS = 4
 # averaged pushes of one round fall short where layers are pressed together, as in a cloth
 # wrung into a rope)
 DEEP_GAP, PROXIMITY_ROUNDS = 0.75, 4
+PRESSED_GAP = 0.5  # a last round that finds a pair closer than this, in h: stats[PRESSED]
 # the candidate list: every pair within h plus its skins at its making, good while no point
 # has moved further than its skin from there (then no pair outside can have come within h,
 # nor meet on the straight paths of a step inside that range). A point's skin, in h: SKIN
@@ -73,9 +74,13 @@ OVERFLOWED = -2  # RobustContact.count: the list made at `anchor` did not fit
 BINS = 3  # RobustContact.count: where the slack bins' starts begin
 IMPACT_GAP = 0.1  # CCD stops a pair at this fraction of the thickness apart
 TOLERANCE = 1e-6  # of the thickness: a pair this close at a coplanar instant meets
-STATS = 14  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
+STATS = 16  # stats: pairs tested, proximity pushes, CCD hits, fail-safe points,
 #            unresolvable pairs, smallest gap (in thickness, at the step's end), steps,
-#            candidate lists made; then the colliders' (pipeline.physics.collider_contact)
+#            candidate lists made; then the colliders' (pipeline.physics.collider_contact);
+#            then PRESSED, PRESSED_STEP
+# steps whose last proximity round still found a pair closer than PRESSED_GAP h, and the
+# first
+PRESSED, PRESSED_STEP = 14, 15
 
 
 class RobustContact(NamedTuple):
@@ -111,7 +116,8 @@ class RobustContact(NamedTuple):
     #                     (row 3, see SKIN)
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
-    deep: np.ndarray  # (1,) int64 scratch: pairs a proximity round found closer than DEEP_GAP h
+    deep: np.ndarray  # (2,) int64 scratch: pairs a proximity round found closer than DEEP_GAP
+    #                   h, and than PRESSED_GAP h
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     meshes: MeshContact | None = None  # the mesh colliders' triangles (none: no rows)
     # mesh_contact.mesh_colliders and its stages for solid and one-sided meshes, through
@@ -153,7 +159,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     room = max(LISTED_PER_POINT * m, BATCH * self_on)  # _listed reads a batch's gaps too
     stats = np.zeros(STATS)
     stats[5] = math.inf
-    stats[-1] = -1.0  # no pinned point forced into a collider yet
+    stats[PIN_POINT] = -1.0  # no pinned point forced into a collider yet
     c = RobustContact(float(thickness), float(friction), tris, edges,
                       np.ascontiguousarray(rest, dtype=np.float64), inv,
                       np.zeros((3, n)), np.zeros((3, n)), np.zeros(n), np.zeros(m, np.uint8),
@@ -163,7 +169,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((9, 4 * size)), np.zeros(4), np.zeros((BATCH, 5), np.int64),
                       np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
                       np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
-                      np.zeros(m), stats, np.zeros(1, np.int64), bool(self_on))
+                      np.zeros(m), stats, np.zeros(2, np.int64), bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
     solid = KernelPointer(solid_faces, (
@@ -210,6 +216,12 @@ def contact_summary(c: RobustContact, steps_per_frame: int = 1) -> str:
                  f"{s[MOVED_OUT]:.0f} points moved out, {s[FACE_PUSHES]:.0f} triangles or "
                  "edges pushed out")
     line = "robust contact: " + "; ".join(parts)
+    if s[PRESSED] > 0:
+        frame = int(s[PRESSED_STEP] - 1) // steps_per_frame + 1
+        line += (f"; from frame {frame}, {s[PRESSED]:.0f} steps ended with layers still "
+                 f"pressed closer than {PRESSED_GAP:g} x thickness after {PROXIMITY_ROUNDS + 1} "
+                 "rounds of pushes (the cloth pulls them together faster than the contact "
+                 'parts them; simulation.integrator "vbd" holds contact inside its solve)')
     if s[4] > 0:
         line += f"; {s[4]:.0f} pairs met with no point free to move (pins forcing them)"
     if s[PIN_POINT] >= 0:
@@ -711,6 +723,7 @@ def _pair(x0, x1, c, mode, ids):
         c.stats[1] += 1.0
         c.stats[5] = min(c.stats[5], d / h)
         c.deep[0] += d < DEEP_GAP * h
+        c.deep[1] += d < PRESSED_GAP * h
         _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d,
                  np.bool_(True))  # not literals: one _respond for both
         return 1
@@ -949,17 +962,21 @@ def robust_contact(x, x0, c):
     # the modes are passed as np.int64, not literals: numba compiles a kernel once per
     # literal argument (_round three times, seconds each)
     # one visit for both: CCD where a pair meets within the step, else proximity
-    c.deep[0] = 0
+    c.deep[:] = 0
     if _round(start, x, c, visit, np.int64(0)) == 0:
         return  # no pair met or came close: nothing moved, no crossing
     _apply(x, c)
     for _ in range(PROXIMITY_ROUNDS):
         if c.deep[0] == 0:
             break
-        c.deep[0] = 0
+        c.deep[:] = 0
         if _round(start, x, c, visit, np.int64(0)) == 0:
             break
         _apply(x, c)
+    if c.deep[1] > 0:  # the rounds ran out, a pair still closer than PRESSED_GAP h
+        if c.stats[PRESSED] == 0.0:
+            c.stats[PRESSED_STEP] = c.stats[6]
+        c.stats[PRESSED] += 1.0
     # the pushes may have made new meetings: CCD rounds until one finds none
     for _ in range(CCD_ROUNDS):
         if _round(start, x, c, visit, np.int64(1)) == 0:
