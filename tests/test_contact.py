@@ -614,6 +614,10 @@ def test_provots_limit_stops_where_the_pins_pull_beyond_its_reach(tmp_path, caps
 
     scene = tmp_path / "strip.json"
     scene.write_text(json.dumps(_pulled_strip(tmp_path, "robust")))
+    capsys.readouterr()
+    assert main(["plan", str(scene)]) == 0
+    assert ("stretch limit: Provot's, stopped if the keyframed pins pull two points beyond "
+            "its reach" in capsys.readouterr().out)
     assert main([str(scene), "--duration", "0.4", "--out", str(tmp_path / "s.gif")]) == 0
     assert ("Provot's stretch limit stopped from frame 18: at t = 0.300 s the pins hold "
             "points 0 and 10 1.105 m apart, beyond the 1.1 m") in capsys.readouterr().err

@@ -44,6 +44,8 @@ class Plan:
     mesh: dict | None = None
     #: how the integrator solves a step, where that is a choice (VBD's sweeps), else ""
     solver: str = ""
+    #: where Provot's limit may stop (keyframed pins under robust contact), else ""
+    stretch_limit: str = ""
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -84,6 +86,8 @@ class Plan:
         elif self.fidelity == "auto" and self.model == "fem":
             out.append(self._grid_line())
         out.append(f"self-collision: {self.self_collision}")
+        if self.stretch_limit:
+            out.append(f"stretch limit: {self.stretch_limit}")
         for c in self.colliders:
             out.append(f"collider {c['name']}: {c['status']}")
         if self.sleeps:
@@ -174,9 +178,6 @@ def make_plan(sim) -> Plan:
         self_collision = ("robust contact on every step: point-triangle and edge-edge pairs "
                           f"kept {scene.cloth.thickness:g} m apart, continuous collision "
                           "detection and a fail-safe (the cloth never passes through itself)")
-        if sim.limit_stop is None and sim.limit_watch is not None:
-            self_collision += ("; Provot's limit stops if the keyframed pins pull two points "
-                               "beyond its reach (no state keeps it then)")
     elif not sim.system.self_collision:
         self_collision = "off" + (" (horizontal cloth)" if s.self_collision == "auto" else "")
     elif auto:
@@ -196,6 +197,9 @@ def make_plan(sim) -> Plan:
         plan.solver = (f"Vertex Block Descent, {sim.system.iterations} sweeps per step"
                        + ("; no stretch limit: Provot's is no energy" if sim.model.fem is None
                           else ""))
+    if sim.limit_watch is not None:
+        plan.stretch_limit = ("Provot's, stopped if the keyframed pins pull two points beyond "
+                              "its reach (no state keeps it then; robust contact comes first)")
     mesh = sim.model.mesh
     if mesh is not None:
         plan.mesh = {"file": str(mesh.source), "points": int(sim.model.n),
