@@ -641,9 +641,9 @@ def _stack(layers: int, gap: float, h: float):
 def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
     """Four large parallel triangles 0.4 h apart, still: one round's pushes, averaged per
     point, leave the inner layers where their pairs above and below push them both ways
-    (0.47 h from another layer after it, 0.73 h after the rounds); the rounds repeated
-    while a pair is closer than 3/4 of the thickness leave every point more than half of
-    it from every other layer, the layers in their order."""
+    (0.47 h from another layer after it); the rounds repeated in place while a pair is
+    closer than 3/4 of the thickness leave every point 0.97 h from every other layer
+    (averaged rounds: 0.73 h), the layers in their order."""
     from pipeline.physics.contact import PRESSED
 
     h, layers = 0.01, 4
@@ -653,7 +653,7 @@ def test_layers_pressed_together_are_pushed_apart_in_more_rounds():
     p = x1.T
     gaps = [crossings.point_triangle_distance(p[i][None], *(p[[j]] for j in tris[k]))[0] / h
             for i in range(3 * layers) for k in range(layers) if i // 3 != k]
-    assert min(gaps) > 0.5 and c.stats[2] == 0  # without a CCD stop
+    assert min(gaps) > 0.9 and c.stats[2] == 0  # without a CCD stop
     assert np.all(np.diff([p[3 * k:3 * k + 3, 1].mean() for k in range(layers)]) > 0)
     assert c.stats[PRESSED] == 0
 

@@ -12,7 +12,8 @@ rest:
    h (inelastic repulsion), with friction: its relative tangential motion over the step
    shrinks by at most `friction` times the push. The moves are averaged per point (Jacobi);
    while a round finds a pair closer than DEEP_GAP h, it is repeated (PROXIMITY_ROUNDS
-   more at most);
+   more at most), each push moving its points at once (Gauss-Seidel: a stack of layers
+   pressed together parts in a round, where averaged pushes part one layer a round);
 2. if anything moved, rounds of CCD alone until one finds no meeting (CCD_ROUNDS at most);
 3. fail-safe: while any pair still meets, every free point of every such pair goes back
    to x0 (moves no further this step). x0 has no crossing, so this ends, at worst with
@@ -52,9 +53,9 @@ from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 from .self_collision import cell_hash
 
 CCD_ROUNDS = 4
-# a pair found closer than DEEP_GAP h: up to PROXIMITY_ROUNDS more rounds of proximity (the
-# averaged pushes of one round fall short where layers are pressed together, as in a cloth
-# wrung into a rope)
+# a pair found closer than DEEP_GAP h: up to PROXIMITY_ROUNDS more rounds of proximity, in
+# place (the averaged pushes of one round fall short where layers are pressed together, as
+# in a cloth wrung into a rope)
 DEEP_GAP, PROXIMITY_ROUNDS = 0.75, 4
 PRESSED_GAP = 0.5  # a last round that finds a pair closer than this, in h: stats[PRESSED]
 # the candidate list: every pair within h plus its skins at its making, good while no point
@@ -116,8 +117,8 @@ class RobustContact(NamedTuple):
     #                     (row 3, see SKIN)
     moved: np.ndarray  # (N,) scratch: each point's move from `anchor` (see _drift)
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
-    deep: np.ndarray  # (2,) int64 scratch: pairs a proximity round found closer than DEEP_GAP
-    #                   h, and than PRESSED_GAP h
+    deep: np.ndarray  # (3,) int64 scratch: pairs a proximity round found closer than DEEP_GAP
+    #                   h, and than PRESSED_GAP h; 1 while a round moves points at once
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     meshes: MeshContact | None = None  # the mesh colliders' triangles (none: no rows)
     # mesh_contact.mesh_colliders and its stages for solid and one-sided meshes, through
@@ -169,7 +170,7 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((9, 4 * size)), np.zeros(4), np.zeros((BATCH, 5), np.int64),
                       np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
                       np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
-                      np.zeros(m), stats, np.zeros(2, np.int64), bool(self_on))
+                      np.zeros(m), stats, np.zeros(3, np.int64), bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
     solid = KernelPointer(solid_faces, (
@@ -862,6 +863,10 @@ def _respond(x0, x1, c, ids, weights, normal, amount, friction):
         k = weights[j] * c.inv_mass[i] / total
         if k == 0.0:
             continue
+        if c.deep[2]:  # a Gauss-Seidel round: the move at once
+            for a in range(3):
+                x1[a, i] += k * (amount * normal[a] + tangential[a])
+            continue
         for a in range(3):
             c.push[a, i] += k * (amount * normal[a] + tangential[a])
         c.pushes[i] += 1.0
@@ -970,7 +975,10 @@ def robust_contact(x, x0, c):
         if c.deep[0] == 0:
             break
         c.deep[:] = 0
-        if _round(start, x, c, visit, np.int64(0)) == 0:
+        c.deep[2] = 1
+        moved = _round(start, x, c, visit, np.int64(0))
+        c.deep[2] = 0
+        if moved == 0:
             break
         _apply(x, c)
     if c.deep[1] > 0:  # the rounds ran out, a pair still closer than PRESSED_GAP h
