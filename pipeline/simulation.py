@@ -15,7 +15,7 @@ from pipeline.physics.errors import (DivergenceError, SelfCollisionWarning, Stab
                                      StartTangledWarning)
 from pipeline.physics.contact import with_room
 from pipeline.physics.integrators import integrator_module
-from pipeline.physics.limit_reach import LimitStop, beyond_reach, limit_reach
+from pipeline.physics.limit_reach import LimitStop, beyond_reach, limit_watch
 from pipeline.physics.model import ClothModel, build_model
 from pipeline.physics.overlap import resolve_start_inside
 from pipeline.physics.system import System, build_system, stability_limit
@@ -29,17 +29,6 @@ def cloth_model(scene: Scene, initial_positions: np.ndarray | None = None) -> Cl
     model = build_model(scene, initial_positions)
     resolve_start_inside(scene, model)
     return model
-
-
-def _limit_reach_of(system: System):
-    """The LimitReach of a mesh cloth whose keyframed pins may pull beyond Provot's limit
-    under robust contact (contact comes first: the limit stops there), else None."""
-    s = system
-    if s.contact is None or not s.stretch_limit or s.pin_motion is None:
-        return None
-    structural = s.springs.structural
-    return limit_reach(s.pinned, s.springs.ends[:, :structural], s.limit[0, :structural],
-                       s.pin_motion)
 
 
 def _warn_short_edges(scene: Scene, model: ClothModel) -> None:
@@ -133,7 +122,7 @@ class Simulation:
         self.step_count = 0
         #: the keyframed pins Provot's limit is watched against (limit_reach) until it
         #: stops, where they leave it no state; None when not watched
-        self.limit_watch = _limit_reach_of(self.system)
+        self.limit_watch = limit_watch(self.system)
         #: where it stopped (LimitStop), None while it runs
         self.limit_stop: LimitStop | None = None
         self.step_limited = module.CONDITIONALLY_STABLE

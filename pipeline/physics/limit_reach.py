@@ -47,6 +47,18 @@ class LimitStop(NamedTuple):
                 "there")
 
 
+def limit_watch(system) -> LimitReach | None:
+    """The LimitReach a System's run watches: a mesh cloth under robust contact whose
+    keyframed pins may pull beyond Provot's limit (contact comes first: the limit stops
+    there), else None."""
+    s = system
+    if s.contact is None or not s.stretch_limit or s.pin_motion is None:
+        return None
+    structural = s.springs.structural
+    return limit_reach(s.pinned, s.springs.ends[:, :structural], s.limit[0, :structural],
+                       s.pin_motion)
+
+
 def limit_reach(pinned: np.ndarray, ends: np.ndarray, limit: np.ndarray,
                 motion: PinMotion | None) -> LimitReach | None:
     """The LimitReach of a cloth whose springs (ends (2, S) int, limits (S,)) the limit
@@ -73,10 +85,12 @@ def limit_reach(pinned: np.ndarray, ends: np.ndarray, limit: np.ndarray,
 def beyond_reach(r: LimitReach, x: np.ndarray, t: float) -> tuple[int, int, float, float] | None:
     """The pinned pair furthest beyond the limit's reach with the pins posed at time t on a
     copy of x (3, N), as (p, q, distance, reach); None if every pair is within it."""
+    from scipy.spatial.distance import cdist
+
     at = x.copy()
     posed(r.motion, at, t)
-    pins = at[:, r.points]
-    distance = np.sqrt(((pins[:, :, None] - pins[:, None, :]) ** 2).sum(axis=0))
+    pins = at[:, r.points].T
+    distance = cdist(pins, pins)
     excess = distance - r.reach  # unconnected pairs: reach inf
     i, j = np.unravel_index(np.argmax(excess), excess.shape)
     if not excess[i, j] > 0.0:
