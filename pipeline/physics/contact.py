@@ -543,6 +543,7 @@ def _make_list(x, c):
     h = c.thickness
     ids, eb, start, fill, slot = (c.ids[0], c.entry_box, c.bucket_start, c.bucket_work[0],
                                   c.bucket_work[1])
+    hits = fill  # _grid's scratch, free while the queries run (its room holds every box)
     c.count[0] = 0
     cell = LIST_CELL * _boxes(x, x, tris, h, skin, 1.0, box)
     for kind in range(2):  # point-triangle, edge-edge (one loop: it compiles once)
@@ -562,30 +563,33 @@ def _make_list(x, c):
             a2, b2 = _span(g, 2, lo[2], hi[2])
             # an edge looks from its own place in the grid on: the edges before it meet it
             own, oy, oz = slot[q], _axis_cell(g, 1, lo[1]), _axis_cell(g, 2, lo[2])
+            met = 0  # the entries whose boxes meet the query's: hits[:met], in the rows' order
             for iz in range(a2 if kind == 0 else oz, b2 + 1):
                 for iy in range(a1 if kind == 0 or iz > oz else oy, b1 + 1):
                     row = n0 * (iy + n1 * iz)
                     first = own + 1 if kind == 1 and iz == oz and iy == oy else start[row + a0]
                     for e in range(first, start[row + b0 + 1]):
-                        # one branch for all the tests (`&`, not `or`): their outcomes are
-                        # unpredictable, and each mispredicted branch costs more than a test
-                        if not ((eb[0, e] <= hi[0]) & (eb[3, e] >= lo[0]) & (eb[1, e] <= hi[1])
-                                & (eb[4, e] >= lo[1]) & (eb[2, e] <= hi[2]) & (eb[5, e] >= lo[2])):
-                            continue
-                        k = c.entries[e]
-                        if kind == 0:
-                            if _shares(tris[k], q):
-                                continue
-                            ids[0], ids[1], ids[2], ids[3] = q, tris[k, 0], tris[k, 1], tris[k, 2]
-                        else:
-                            u, v, w, z = edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1]
-                            if u == w or u == z or v == w or v == z:
-                                continue
-                            if k < q:  # in the order of the edges
-                                u, v, w, z = w, z, u, v
-                            ids[0], ids[1], ids[2], ids[3] = u, v, w, z
-                        ids[4] = kind
-                        _collect(x, c, ids)
+                        # no branch on the tests (their outcomes are unpredictable, and a
+                        # mispredicted branch costs more than they do): every entry is written,
+                        # and kept by counting it
+                        hits[met] = e
+                        met += ((eb[0, e] <= hi[0]) & (eb[3, e] >= lo[0]) & (eb[1, e] <= hi[1])
+                                & (eb[4, e] >= lo[1]) & (eb[2, e] <= hi[2]) & (eb[5, e] >= lo[2]))
+            for j in range(met):
+                k = c.entries[hits[j]]
+                if kind == 0:
+                    if _shares(tris[k], q):
+                        continue
+                    ids[0], ids[1], ids[2], ids[3] = q, tris[k, 0], tris[k, 1], tris[k, 2]
+                else:
+                    u, v, w, z = edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1]
+                    if u == w or u == z or v == w or v == z:
+                        continue
+                    if k < q:  # in the order of the edges
+                        u, v, w, z = w, z, u, v
+                    ids[0], ids[1], ids[2], ids[3] = u, v, w, z
+                ids[4] = kind
+                _collect(x, c, ids)
     if c.count[0] <= c.listed.shape[0]:
         _by_gap(c.listed, c.listed_gap, c.count[0], c.count[BINS:], fill, skin, h)
     return 0
