@@ -300,6 +300,51 @@ def test_a_list_with_a_skin_for_every_point_has_every_pair_within_reach_once():
 
 # --- colliders ---------------------------------------------------------------------------
 
+def _fold_list(rows: int, threads: int):
+    """The first candidate list of a 20 x 20 fold made in `rows` rows on `threads` numba
+    threads: (its pairs and distances, or None where it did not fit; the contact)."""
+    import numba
+
+    from pipeline.physics import contact
+
+    h = 0.008
+    rest, x, tris = _folded_cloth(20, h, 0)
+    n = x.shape[1]
+    c = pack_contact(h, 0.3, tris, rest, np.ones(n), np.zeros(n, np.uint8))
+    c = c._replace(listed=np.zeros((rows, 5), np.int64), listed_gap=np.zeros(rows))
+    before = numba.get_num_threads()
+    numba.set_num_threads(threads)
+    try:
+        contact._make_list(x, contact.RobustContact(*c[:-1], None))
+    finally:
+        numba.set_num_threads(before)
+    count = c.count[0]
+    if count > rows:
+        return None, c
+    return (c.listed[:count].copy(), c.listed_gap[:count].copy()), c
+
+
+def test_the_list_made_on_the_threads_is_the_same_in_any_room_that_holds_it():
+    """The list's queries run in runs on the threads, each into its own share of the rows:
+    the same pairs in the same order on one thread and on two; where the rows hold the list
+    but a run's share does not hold its pairs, the queries run again in one run (the same
+    list); where the rows do not hold it, the count says so."""
+    from pipeline.physics import contact
+
+    (pairs, gaps), c = _fold_list(256 * 400, 1)
+    count = len(pairs)
+    assert count > 1000
+    again, _ = _fold_list(256 * 400, 2)
+    assert np.array_equal(again[0], pairs) and np.array_equal(again[1], gaps)
+    tight, c = _fold_list(count, 2)
+    # the edge pass's shares: the rows after the point-triangle pairs, split evenly
+    share = (count - int(np.sum(pairs[:, 4] == 0))) // contact.CHUNKS
+    assert c.found.max() > share  # a run did not fit its share
+    assert np.array_equal(tight[0], pairs) and np.array_equal(tight[1], gaps)
+    short, c = _fold_list(count - 1, 2)
+    assert short is None and c.count[0] == count
+
+
 def _collider_checker():
     spec = importlib.util.spec_from_file_location(
         "collider_crossings",

@@ -31,8 +31,9 @@ order of its pairs' slack (their distance beyond h over their skins): a visit re
 pairs whose slack the moves since may have used up. A step that moves further, or whose
 list did not fit (Simulation then doubles its room: with_room), visits a spatial hash of
 the primitives' swept boxes directly (each pair found once, in its canonical cell).
-Everything is serial and in a fixed order: results are bit-for-bit the same on every run
-and thread count.
+The list's queries run on the threads, each run listing into rows of its own, moved into
+place in order; everything else is serial. Everything is in a fixed order: results are
+bit-for-bit the same on every run and thread count.
 """
 from __future__ import annotations
 
@@ -43,12 +44,13 @@ import numpy as np
 
 from numba.core import types
 
-from clothjit import KernelPointer, njit
+from clothjit import KernelPointer, njit, prange
 
 from .collider_contact import (FACE_PUSHES, MOVED_OUT, NOT_KEPT, PATH_STOPS, PIN_POINT, PIN_STEP,
                                solid_faces)
 from .ccd import (edge_edge_distance, edge_edge_impact, orient, point_triangle_distance,
                   point_triangle_impact)
+from .forces import CHUNKS, _chunk
 from .mesh_contact import MeshContact, mesh_pointers, pack_meshes
 from .self_collision import cell_hash
 
@@ -69,6 +71,7 @@ SKIN_CALLS, SKIN_SHRINK = 32.0, 0.75
 LIST_CELL = 0.5  # the list's grid cells, in the triangles' mean box side
 GAP_BINS = 16  # the list is kept in order of these bins of its pairs' slack, in [0, 1]
 LISTED_PER_POINT = 64  # room in the list at first; with_room doubles it when it overflows
+LIST_HITS = 1024  # room for the entries a query meets (_list_pairs; taken in turns past it)
 MAX_LISTED_PER_POINT = 1024  # beyond this, the steps visit the hash directly
 BATCH = 1024  # _visit hands the pairs it finds on the hash to _listed this many at a time
 OVERFLOWED = -2  # RobustContact.count: the list made at `anchor` did not fit
@@ -119,6 +122,8 @@ class RobustContact(NamedTuple):
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     deep: np.ndarray  # (3,) int64 scratch: pairs a proximity round found closer than DEEP_GAP
     #                   h, and than PRESSED_GAP h; 1 while a round moves points at once
+    hits: np.ndarray  # (CHUNKS, LIST_HITS) int64 scratch of _make_list's runs
+    found: np.ndarray  # (CHUNKS,) int64 scratch: the pairs each run of _make_list found
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
     meshes: MeshContact | None = None  # the mesh colliders' triangles (none: no rows)
     # mesh_contact.mesh_colliders and its stages for solid and one-sided meshes, through
@@ -130,6 +135,10 @@ class RobustContact(NamedTuple):
     # collider_contact.solid_faces (a sphere's or box's stage 2), absent where the scene has
     # neither
     solid_pass: KernelPointer | None = None
+    # _make_list's runs on the threads (_list_runs) and their queries (_list_pairs), absent
+    # without self-contact
+    list_runs: KernelPointer | None = None
+    list_pairs: KernelPointer | None = None
     # _visit through a pointer: compiled once, not again inside robust_contact (a first use
     # of robust contact compiled 12 s with it linked there); None in the params it is handed
     visit: KernelPointer | None = None
@@ -170,7 +179,9 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((9, 4 * size)), np.zeros(4), np.zeros((BATCH, 5), np.int64),
                       np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
                       np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
-                      np.zeros(m), stats, np.zeros(3, np.int64), bool(self_on))
+                      np.zeros(m), stats, np.zeros(3, np.int64),
+                      np.zeros((CHUNKS, LIST_HITS * self_on), np.int64),
+                      np.zeros(CHUNKS, np.int64), bool(self_on))
     field = types.float64[:, ::1]
     passes = mesh_pointers(meshes, c.edges, inv, stats)
     solid = KernelPointer(solid_faces, (
@@ -178,6 +189,17 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
         types.float64[:, :, ::1], types.int64), types.int64, present=bool(solids))
     c = c._replace(meshes=meshes, mesh_pass=passes[0], solid_stage=passes[1],
                    sheet_stage=passes[2], solid_pass=solid)
+    grid = types.UniTuple(types.float64, 10)  # _grid's
+    row, i64, f64 = c.anchor[3], types.int64, types.float64
+    pairs = KernelPointer(_list_pairs, (
+        field, i64, i64, i64, grid, tris, c.edges, c.box, row, c.rest, f64, c.entry_box,
+        c.bucket_start, c.entries, c.bucket_work[1], c.hits[0], c.ids[0], c.listed,
+        c.listed_gap, i64, i64), i64, present=bool(self_on))
+    runs = KernelPointer(_list_runs, (
+        field, i64, i64, grid, tris, c.edges, c.box, row, c.rest, f64, c.entry_box,
+        c.bucket_start, c.entries, c.bucket_work[1], c.hits, c.ids, c.listed, c.listed_gap,
+        i64, i64, c.found, pairs), present=bool(self_on))
+    c = c._replace(list_runs=runs, list_pairs=pairs)
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
 
@@ -331,15 +353,16 @@ def _shares(tri, p):
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _rest_close(c, ids):
-    """Whether the pair (4 point ids: p, a, b, c or a, b, c, d) lies within the thickness
-    at rest (neighbours in a fine mesh: never a contact)."""
-    r = c.rest
+def _rest_close(rest, h, ids):
+    """Whether the pair (4 point ids: p, a, b, c or a, b, c, d) lies within h at `rest`
+    (neighbours in a fine mesh: never a contact)."""
     if ids[4] == 0:
-        d = point_triangle_distance(_p(r, ids[0]), _p(r, ids[1]), _p(r, ids[2]), _p(r, ids[3]))[0]
+        d = point_triangle_distance(_p(rest, ids[0]), _p(rest, ids[1]), _p(rest, ids[2]),
+                                    _p(rest, ids[3]))[0]
     else:
-        d = edge_edge_distance(_p(r, ids[0]), _p(r, ids[1]), _p(r, ids[2]), _p(r, ids[3]))[0]
-    return d < c.thickness
+        d = edge_edge_distance(_p(rest, ids[0]), _p(rest, ids[1]), _p(rest, ids[2]),
+                               _p(rest, ids[3]))[0]
+    return d < h
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
@@ -536,78 +559,146 @@ def _make_list(x, c):
     whose boxes lie in every cell they meet and whose pairs are met in every cell both
     do): a point looks at the triangles in the cells that may hold the lower corner of a
     box meeting its own, an edge likewise at the edges from its own place in the grid on
-    (a pair met from one of its edges only). The steps' own visits keep the hash: a fast
+    (a pair met from one of its edges only). The queries run in CHUNKS runs on the threads
+    (c.list_runs), each listing into its own share of the free rows, then moved up in
+    order: the same list on any thread count. The steps' own visits keep the hash: a fast
     point's swept box can be far larger than the others, and on the grid every query
     would look that far below its own box. Returns 0."""
     tris, edges, box, skin = c.triangles, c.edges, c.box, c.anchor[3]
     h = c.thickness
-    ids, eb, start, fill, slot = (c.ids[0], c.entry_box, c.bucket_start, c.bucket_work[0],
-                                  c.bucket_work[1])
-    hits = fill  # _grid's scratch, free while the queries run (its room holds every box)
-    c.count[0] = 0
+    eb, start, fill, slot, found = (c.entry_box, c.bucket_start, c.bucket_work[0],
+                                    c.bucket_work[1], c.found)
+    rows = c.listed.shape[0]
+    total = 0  # pairs found so far (listed while they fit)
     cell = LIST_CELL * _boxes(x, x, tris, h, skin, 1.0, box)
     for kind in range(2):  # point-triangle, edge-edge (one loop: it compiles once)
         prims = tris if kind == 0 else edges
         if kind == 1:
             _boxes(x, x, edges, 0.5 * h, skin, 1.0, box)
         g = _grid(box, prims.shape[0], cell, start, fill, slot, c.entries, eb)
-        n0, n1 = int(g[7]), int(g[8])
-        for q in range(x.shape[1] if kind == 0 else edges.shape[0]):
-            if kind == 0:
-                lo = (x[0, q] - skin[q], x[1, q] - skin[q], x[2, q] - skin[q])
-                hi = (x[0, q] + skin[q], x[1, q] + skin[q], x[2, q] + skin[q])
-            else:
-                lo, hi = (box[0, q], box[1, q], box[2, q]), (box[3, q], box[4, q], box[5, q])
-            a0, b0 = _span(g, 0, lo[0], hi[0])
-            a1, b1 = _span(g, 1, lo[1], hi[1])
-            a2, b2 = _span(g, 2, lo[2], hi[2])
-            # an edge looks from its own place in the grid on: the edges before it meet it
-            own, oy, oz = slot[q], _axis_cell(g, 1, lo[1]), _axis_cell(g, 2, lo[2])
-            met = 0  # the entries whose boxes meet the query's: hits[:met], in the rows' order
-            for iz in range(a2 if kind == 0 else oz, b2 + 1):
-                for iy in range(a1 if kind == 0 or iz > oz else oy, b1 + 1):
-                    row = n0 * (iy + n1 * iz)
-                    first = own + 1 if kind == 1 and iz == oz and iy == oy else start[row + a0]
-                    for e in range(first, start[row + b0 + 1]):
-                        # no branch on the tests (their outcomes are unpredictable, and a
-                        # mispredicted branch costs more than they do): every entry is written,
-                        # and kept by counting it
-                        hits[met] = e
-                        met += ((eb[0, e] <= hi[0]) & (eb[3, e] >= lo[0]) & (eb[1, e] <= hi[1])
-                                & (eb[4, e] >= lo[1]) & (eb[2, e] <= hi[2]) & (eb[5, e] >= lo[2]))
-            for j in range(met):
-                k = c.entries[hits[j]]
-                if kind == 0:
-                    if _shares(tris[k], q):
-                        continue
-                    ids[0], ids[1], ids[2], ids[3] = q, tris[k, 0], tris[k, 1], tris[k, 2]
-                else:
-                    u, v, w, z = edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1]
-                    if u == w or u == z or v == w or v == z:
-                        continue
-                    if k < q:  # in the order of the edges
-                        u, v, w, z = w, z, u, v
-                    ids[0], ids[1], ids[2], ids[3] = u, v, w, z
-                ids[4] = kind
-                _collect(x, c, ids)
-    if c.count[0] <= c.listed.shape[0]:
+        queries = x.shape[1] if kind == 0 else edges.shape[0]
+        base = min(total, rows)
+        share = (rows - base) // CHUNKS
+        c.list_runs(x, kind, queries, g, tris, edges, box, skin, c.rest, h, eb, start,
+                    c.entries, slot, c.hits, c.ids, c.listed, c.listed_gap, base, share, found,
+                    c.list_pairs)
+        fits, here = True, 0
+        for run in range(CHUNKS):
+            fits &= found[run] <= share
+            here += found[run]
+        if fits:
+            for run in range(CHUNKS):  # each run's pairs after the last's, in order
+                for k in range(found[run]):
+                    at, to = base + run * share + k, total + k
+                    for j in range(5):
+                        c.listed[to, j] = c.listed[at, j]
+                    c.listed_gap[to] = c.listed_gap[at]
+                total += found[run]
+        elif total + here <= rows:  # a share, not the rows, too small: again in one run
+            total += c.list_pairs(x, kind, 0, queries, g, tris, edges, box, skin, c.rest, h,
+                                  eb, start, c.entries, slot, c.hits[0], c.ids[0], c.listed,
+                                  c.listed_gap, base, rows)
+        else:
+            total += here
+    c.count[0] = total  # past the rows: no valid list (_round)
+    if c.count[0] <= rows:
         _by_gap(c.listed, c.listed_gap, c.count[0], c.count[BINS:], fill, skin, h)
     return 0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
-def _collect(x, c, ids):
-    """List the pair if within h plus its skins at x and not neighbours at rest."""
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True, no_cpython_wrapper=True,
+      pointer=True)
+def _list_runs(x, kind, count, g, tris, edges, box, skin, rest, h, eb, start, entries, slot,
+               hits, ids, listed, gap, base, share, found, pairs):
+    """The `count` queries of `kind` in CHUNKS runs on the threads (`pairs`: the
+    _list_pairs pointer), run r listing into listed[base + r share:][:share] and counting
+    its pairs in found[r] (past its share too: then they did not fit)."""
+    for run in prange(CHUNKS):
+        lo, hi = _chunk(run, count)
+        at = base + run * share
+        found[run] = pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, h, eb, start,
+                           entries, slot, hits[run], ids[run], listed, gap, at, at + share)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
+      pointer=True)
+def _list_pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, h, eb, start, entries,
+                slot, hits, ids, listed, gap, at, end):
+    """_make_list's queries lo..hi of `kind` on the grid g (_grid), listing their pairs in
+    order into listed[at:end] and their distances into gap; returns how many pairs it
+    found (past `end` too). hits: scratch for the entries a query meets, ids: for a pair."""
+    n0, n1 = int(g[7]), int(g[8])
+    first_at = at
+    for q in range(lo, hi):
+        if kind == 0:
+            qlo = (x[0, q] - skin[q], x[1, q] - skin[q], x[2, q] - skin[q])
+            qhi = (x[0, q] + skin[q], x[1, q] + skin[q], x[2, q] + skin[q])
+        else:
+            qlo, qhi = (box[0, q], box[1, q], box[2, q]), (box[3, q], box[4, q], box[5, q])
+        a0, b0 = _span(g, 0, qlo[0], qhi[0])
+        a1, b1 = _span(g, 1, qlo[1], qhi[1])
+        a2, b2 = _span(g, 2, qlo[2], qhi[2])
+        # an edge looks from its own place in the grid on: the edges before it meet it
+        own, oy, oz = slot[q], _axis_cell(g, 1, qlo[1]), _axis_cell(g, 2, qlo[2])
+        met = 0  # the entries whose boxes meet the query's: hits[:met], in the rows' order
+        for iz in range(a2 if kind == 0 else oz, b2 + 1):
+            for iy in range(a1 if kind == 0 or iz > oz else oy, b1 + 1):
+                row = n0 * (iy + n1 * iz)
+                first = own + 1 if kind == 1 and iz == oz and iy == oy else start[row + a0]
+                for e in range(first, start[row + b0 + 1]):
+                    # no branch on the tests (their outcomes are unpredictable, and a
+                    # mispredicted branch costs more than they do): every entry is written,
+                    # and kept by counting it
+                    hits[met] = e
+                    met += ((eb[0, e] <= qhi[0]) & (eb[3, e] >= qlo[0])
+                            & (eb[1, e] <= qhi[1]) & (eb[4, e] >= qlo[1])
+                            & (eb[2, e] <= qhi[2]) & (eb[5, e] >= qlo[2]))
+                    if met == hits.shape[0]:
+                        at = _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin,
+                                        rest, h, ids, listed, gap, at, end)
+                        met = 0
+        at = _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, h, ids,
+                        listed, gap, at, end)
+    return at - first_at
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, h, ids, listed, gap,
+               at, end):
+    """_collect the pairs of query q with the entries hits[:met] that share no point with
+    it; returns the next row."""
+    for j in range(met):
+        k = entries[hits[j]]
+        if kind == 0:
+            if _shares(tris[k], q):
+                continue
+            ids[0], ids[1], ids[2], ids[3] = q, tris[k, 0], tris[k, 1], tris[k, 2]
+        else:
+            u, v, w, z = edges[q, 0], edges[q, 1], edges[k, 0], edges[k, 1]
+            if u == w or u == z or v == w or v == z:
+                continue
+            if k < q:  # in the order of the edges
+                u, v, w, z = w, z, u, v
+            ids[0], ids[1], ids[2], ids[3] = u, v, w, z
+        ids[4] = kind
+        at = _collect(x, ids, skin, rest, h, listed, gap, at, end)
+    return at
+
+
+# inlined: a call passing its seven arrays cost more than its test (5.4 against 7.4 ms a list
+# of selfCollision's piled cloth)
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _collect(x, ids, skin, rest, h, listed, gap, at, end):
+    """List the pair at row `at` (if below `end`) if within h plus its skins at x and not
+    neighbours at rest; returns the next row."""
     d = _distance(x, ids)
-    if d > c.thickness + _skins(c.anchor[3], ids) or _rest_close(c, ids):
-        return 0
-    k = c.count[0]
-    if k < c.listed.shape[0]:
+    if d > h + _skins(skin, ids) or _rest_close(rest, h, ids):
+        return at
+    if at < end:
         for j in range(5):
-            c.listed[k, j] = ids[j]
-        c.listed_gap[k] = d
-    c.count[0] = k + 1  # counted beyond the room too: with_room makes room for them all
-    return 0
+            listed[at, j] = ids[j]
+        gap[at] = d
+    return at + 1
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
@@ -723,7 +814,7 @@ def _pair(x0, x1, c, mode, ids):
         if mode != 0:
             return 0
         # no impact: proximity at the end of the step
-        if d >= h or _rest_close(c, ids):
+        if d >= h or _rest_close(c.rest, h, ids):
             return 0
         c.stats[1] += 1.0
         c.stats[5] = min(c.stats[5], d / h)
@@ -732,7 +823,7 @@ def _pair(x0, x1, c, mode, ids):
         _respond(x0, x1, c, ids, weights, _normal(x0, x1, ids, weights, d), h - d,
                  np.bool_(True))  # not literals: one _respond for both
         return 1
-    if _rest_close(c, ids):
+    if _rest_close(c.rest, h, ids):
         return 0
     if mode == 2:
         movable = 0
