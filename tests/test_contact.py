@@ -300,6 +300,46 @@ def test_a_list_with_a_skin_for_every_point_has_every_pair_within_reach_once():
 
 # --- colliders ---------------------------------------------------------------------------
 
+def test_the_list_leaves_out_the_neighbours_at_rest_and_learns_them():
+    """A thickness of 0.76 of the fold's spacing: a point lies within it of the triangles
+    across its cells' diagonals at rest. The list holds every pair within reach that is not
+    within h at rest (brute force, the checker's distances), and the pairs it found within
+    h at rest are learnt: each is such a pair (brute force), and a list made again with
+    them, measuring them no more, is the same list."""
+    from pipeline.physics import contact
+
+    h = 0.012
+    listed, expected = _listed_against_brute_force(h)
+    assert len(listed) == len(set(listed))
+    assert set(listed) == expected
+    rest, x, tris = _folded_cloth(20, h, 0)
+    n = x.shape[1]
+    c = pack_contact(h, 0.3, tris, rest, np.ones(n), np.zeros(n, np.uint8))
+    c = c._replace(listed=np.zeros((256 * n, 5), np.int64), listed_gap=np.zeros(256 * n))
+    bare = contact.RobustContact(*c[:-1], None)
+    contact._make_list(x, bare)
+    first = c.listed[:c.count[0]].copy(), c.listed_gap[:c.count[0]].copy()
+    counts = c.neighbour_count.copy()
+    contact._make_list(x, bare)
+    assert np.array_equal(c.neighbour_count, counts)  # none measured again, none learnt twice
+    assert np.array_equal(c.listed[:c.count[0]], first[0])
+    assert np.array_equal(c.listed_gap[:c.count[0]], first[1])
+    at_rest = rest.T
+    learnt = 0
+    for p in range(n):
+        for t in c.neighbours[p, :c.neighbour_count[p]]:
+            a, b, d = tris[t]
+            assert crossings.point_triangle_distance(*(at_rest[[v]] for v in (p, a, b, d)))[0] < h
+            learnt += 1
+    for e, (a, b) in enumerate(c.edges):
+        for f in c.neighbours[n + e, :c.neighbour_count[n + e]]:
+            u, v = c.edges[f]
+            assert crossings.segment_segment_distance(
+                *(at_rest[[w]] for w in (a, b, u, v)))[0] < h
+            learnt += 1
+    assert learnt > 300
+
+
 def _fold_list(rows: int, threads: int):
     """The first candidate list of a 20 x 20 fold made in `rows` rows on `threads` numba
     threads: (its pairs and distances, or None where it did not fit; the contact)."""

@@ -72,6 +72,7 @@ LIST_CELL = 0.5  # the list's grid cells, in the triangles' mean box side
 GAP_BINS = 16  # the list is kept in order of these bins of its pairs' slack, in [0, 1]
 LISTED_PER_POINT = 64  # room in the list at first; with_room doubles it when it overflows
 LIST_HITS = 1024  # room for the entries a query meets (_list_pairs; taken in turns past it)
+NEIGHBOURS = 8  # pairs within h at rest learnt per primitive (RobustContact.neighbours)
 MAX_LISTED_PER_POINT = 1024  # beyond this, the steps visit the hash directly
 BATCH = 1024  # _visit hands the pairs it finds on the hash to _listed this many at a time
 OVERFLOWED = -2  # RobustContact.count: the list made at `anchor` did not fit
@@ -122,6 +123,11 @@ class RobustContact(NamedTuple):
     stats: np.ndarray  # (STATS,) float64, summed over the run (smallest gap: minimum)
     deep: np.ndarray  # (3,) int64 scratch: pairs a proximity round found closer than DEEP_GAP
     #                   h, and than PRESSED_GAP h; 1 while a round moves points at once
+    # pairs found within h at rest (neighbours, never listed), learnt as _make_list meets
+    # them: point p's triangles neighbours[p, :neighbour_count[p]], edge e's edges in row
+    # N + e (at most NEIGHBOURS a primitive; the others are measured again at each making)
+    neighbours: np.ndarray
+    neighbour_count: np.ndarray
     hits: np.ndarray  # (CHUNKS, LIST_HITS) int64 scratch of _make_list's runs
     found: np.ndarray  # (CHUNKS,) int64 scratch: the pairs each run of _make_list found
     self_on: bool = True  # self-contact too (else the colliders' robust pass only)
@@ -180,6 +186,8 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                       np.zeros((room, 5), np.int64), np.zeros(room), _no_list(),
                       np.concatenate([np.zeros((3, m)), np.full((1, m), SKIN * thickness)]),
                       np.zeros(m), stats, np.zeros(3, np.int64),
+                      np.zeros(((n + len(edges)) * self_on, NEIGHBOURS), np.int64),
+                      np.zeros((n + len(edges)) * self_on, np.int64),
                       np.zeros((CHUNKS, LIST_HITS * self_on), np.int64),
                       np.zeros(CHUNKS, np.int64), bool(self_on))
     field = types.float64[:, ::1]
@@ -191,12 +199,13 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
                    sheet_stage=passes[2], solid_pass=solid)
     grid = types.UniTuple(types.float64, 10)  # _grid's
     row, i64, f64 = c.anchor[3], types.int64, types.float64
+    near = (c.neighbours, c.neighbour_count)
     pairs = KernelPointer(_list_pairs, (
-        field, i64, i64, i64, grid, tris, c.edges, c.box, row, c.rest, f64, c.entry_box,
+        field, i64, i64, i64, grid, tris, c.edges, c.box, row, c.rest, *near, f64, c.entry_box,
         c.bucket_start, c.entries, c.bucket_work[1], c.hits[0], c.ids[0], c.listed,
         c.listed_gap, i64, i64), i64, present=bool(self_on))
     runs = KernelPointer(_list_runs, (
-        field, i64, i64, grid, tris, c.edges, c.box, row, c.rest, f64, c.entry_box,
+        field, i64, i64, grid, tris, c.edges, c.box, row, c.rest, *near, f64, c.entry_box,
         c.bucket_start, c.entries, c.bucket_work[1], c.hits, c.ids, c.listed, c.listed_gap,
         i64, i64, c.found, pairs), present=bool(self_on))
     c = c._replace(list_runs=runs, list_pairs=pairs)
@@ -579,7 +588,8 @@ def _make_list(x, c):
         queries = x.shape[1] if kind == 0 else edges.shape[0]
         base = min(total, rows)
         share = (rows - base) // CHUNKS
-        c.list_runs(x, kind, queries, g, tris, edges, box, skin, c.rest, h, eb, start,
+        c.list_runs(x, kind, queries, g, tris, edges, box, skin, c.rest, c.neighbours,
+                    c.neighbour_count, h, eb, start,
                     c.entries, slot, c.hits, c.ids, c.listed, c.listed_gap, base, share, found,
                     c.list_pairs)
         fits, here = True, 0
@@ -595,8 +605,8 @@ def _make_list(x, c):
                     c.listed_gap[to] = c.listed_gap[at]
                 total += found[run]
         elif total + here <= rows:  # a share, not the rows, too small: again in one run
-            total += c.list_pairs(x, kind, 0, queries, g, tris, edges, box, skin, c.rest, h,
-                                  eb, start, c.entries, slot, c.hits[0], c.ids[0], c.listed,
+            total += c.list_pairs(x, kind, 0, queries, g, tris, edges, box, skin, c.rest,
+                                  c.neighbours, c.neighbour_count, h, eb, start, c.entries, slot, c.hits[0], c.ids[0], c.listed,
                                   c.listed_gap, base, rows)
         else:
             total += here
@@ -608,22 +618,23 @@ def _make_list(x, c):
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True, no_cpython_wrapper=True,
       pointer=True)
-def _list_runs(x, kind, count, g, tris, edges, box, skin, rest, h, eb, start, entries, slot,
-               hits, ids, listed, gap, base, share, found, pairs):
+def _list_runs(x, kind, count, g, tris, edges, box, skin, rest, neighbours, neighbour_count,
+               h, eb, start, entries, slot, hits, ids, listed, gap, base, share, found, pairs):
     """The `count` queries of `kind` in CHUNKS runs on the threads (`pairs`: the
     _list_pairs pointer), run r listing into listed[base + r share:][:share] and counting
     its pairs in found[r] (past its share too: then they did not fit)."""
     for run in prange(CHUNKS):
         lo, hi = _chunk(run, count)
         at = base + run * share
-        found[run] = pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, h, eb, start,
-                           entries, slot, hits[run], ids[run], listed, gap, at, at + share)
+        found[run] = pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, neighbours,
+                           neighbour_count, h, eb, start, entries, slot, hits[run], ids[run],
+                           listed, gap, at, at + share)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
       pointer=True)
-def _list_pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, h, eb, start, entries,
-                slot, hits, ids, listed, gap, at, end):
+def _list_pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, neighbours,
+                neighbour_count, h, eb, start, entries, slot, hits, ids, listed, gap, at, end):
     """_make_list's queries lo..hi of `kind` on the grid g (_grid), listing their pairs in
     order into listed[at:end] and their distances into gap; returns how many pairs it
     found (past `end` too). hits: scratch for the entries a query meets, ids: for a pair."""
@@ -655,18 +666,22 @@ def _list_pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, h, eb, start, 
                             & (eb[2, e] <= qhi[2]) & (eb[5, e] >= qlo[2]))
                     if met == hits.shape[0]:
                         at = _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin,
-                                        rest, h, ids, listed, gap, at, end)
+                                        rest, neighbours, neighbour_count, h, ids, listed, gap,
+                                        at, end)
                         met = 0
-        at = _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, h, ids,
-                        listed, gap, at, end)
+        at = _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, neighbours,
+                        neighbour_count, h, ids, listed, gap, at, end)
     return at - first_at
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, h, ids, listed, gap,
-               at, end):
-    """_collect the pairs of query q with the entries hits[:met] that share no point with
-    it; returns the next row."""
+def _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, neighbours,
+               neighbour_count, h, ids, listed, gap, at, end):
+    """List the pairs of query q with the entries hits[:met] that share no point with
+    it, within h plus their skins at x, not within h at rest (those it learns: not measured
+    again), at row `at` on (below `end`); returns the next row."""
+    row = q if kind == 0 else neighbours.shape[0] - edges.shape[0] + q
+    known = neighbour_count[row]
     for j in range(met):
         k = entries[hits[j]]
         if kind == 0:
@@ -680,25 +695,32 @@ def _pairs_met(x, kind, q, hits, met, tris, edges, entries, skin, rest, h, ids, 
             if k < q:  # in the order of the edges
                 u, v, w, z = w, z, u, v
             ids[0], ids[1], ids[2], ids[3] = u, v, w, z
+        if _among(neighbours[row], known, k):
+            continue
         ids[4] = kind
-        at = _collect(x, ids, skin, rest, h, listed, gap, at, end)
+        d = _distance(x, ids)
+        if d > h + _skins(skin, ids):
+            continue
+        if _rest_close(rest, h, ids):  # learnt: not measured again
+            if neighbour_count[row] < neighbours.shape[1]:
+                neighbours[row, neighbour_count[row]] = k
+                neighbour_count[row] += 1
+            continue
+        if at < end:
+            for i in range(5):
+                listed[at, i] = ids[i]
+            gap[at] = d
+        at += 1
     return at
 
 
-# inlined: a call passing its seven arrays cost more than its test (5.4 against 7.4 ms a list
-# of selfCollision's piled cloth)
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _collect(x, ids, skin, rest, h, listed, gap, at, end):
-    """List the pair at row `at` (if below `end`) if within h plus its skins at x and not
-    neighbours at rest; returns the next row."""
-    d = _distance(x, ids)
-    if d > h + _skins(skin, ids) or _rest_close(rest, h, ids):
-        return at
-    if at < end:
-        for j in range(5):
-            listed[at, j] = ids[j]
-        gap[at] = d
-    return at + 1
+def _among(values, count, k):
+    """Whether k is among values[:count]."""
+    for j in range(count):
+        if values[j] == k:
+            return True
+    return False
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False)
