@@ -589,9 +589,8 @@ def _make_list(x, c):
         base = min(total, rows)
         share = (rows - base) // CHUNKS
         c.list_runs(x, kind, queries, g, tris, edges, box, skin, c.rest, c.neighbours,
-                    c.neighbour_count, h, eb, start,
-                    c.entries, slot, c.hits, c.ids, c.listed, c.listed_gap, base, share, found,
-                    c.list_pairs)
+                    c.neighbour_count, h, eb, start, c.entries, slot, c.hits, c.ids, c.listed,
+                    c.listed_gap, base, share, found, c.list_pairs)
         fits, here = True, 0
         for run in range(CHUNKS):
             fits &= found[run] <= share
@@ -606,8 +605,9 @@ def _make_list(x, c):
                 total += found[run]
         elif total + here <= rows:  # a share, not the rows, too small: again in one run
             total += c.list_pairs(x, kind, 0, queries, g, tris, edges, box, skin, c.rest,
-                                  c.neighbours, c.neighbour_count, h, eb, start, c.entries, slot, c.hits[0], c.ids[0], c.listed,
-                                  c.listed_gap, base, rows)
+                                  c.neighbours, c.neighbour_count, h, eb, start, c.entries,
+                                  slot, c.hits[0], c.ids[0], c.listed, c.listed_gap, base,
+                                  rows)
         else:
             total += here
     c.count[0] = total  # past the rows: no valid list (_round)
