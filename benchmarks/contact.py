@@ -422,7 +422,7 @@ def run_scene(name: str, mode: str, seconds: float | None, every: int | None,
                f"{sum(thr)}, {len(hit)} frames with either: {ranges(hit)}; y mid at frame "
                f"{rows[-1][0]} {rows[-1][6]:.3f} m; simulate {sim_s:.2f} s (the first "
                f"frame, loading the kernels, {first_s:.2f} s apart), checker {check_s:.2f} s" + (f"; {error}" if error else ""))
-    stop = getattr(sim, "limit_stop", None)
+    stop = sim.limit_stop
     if stop is not None:
         summary += f"; {stop.note}"
     print(summary)

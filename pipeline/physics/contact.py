@@ -43,6 +43,7 @@ from typing import NamedTuple
 import numpy as np
 
 from numba.core import types
+from numba.extending import register_jitable
 
 from clothjit import KernelPointer, njit, prange
 
@@ -198,16 +199,11 @@ def pack_contact(thickness: float, friction: float, triangles: np.ndarray,
     c = c._replace(meshes=meshes, mesh_pass=passes[0], solid_stage=passes[1],
                    sheet_stage=passes[2], solid_pass=solid)
     grid = types.UniTuple(types.float64, 10)  # _grid's
-    row, i64, f64 = c.anchor[3], types.int64, types.float64
-    near = (c.neighbours, c.neighbour_count)
-    pairs = KernelPointer(_list_pairs, (
-        field, i64, i64, i64, grid, tris, c.edges, c.box, row, c.rest, *near, f64, c.entry_box,
-        c.bucket_start, c.entries, c.bucket_work[1], c.hits[0], c.ids[0], c.listed,
-        c.listed_gap, i64, i64), i64, present=bool(self_on))
-    runs = KernelPointer(_list_runs, (
-        field, i64, i64, grid, tris, c.edges, c.box, row, c.rest, *near, f64, c.entry_box,
-        c.bucket_start, c.entries, c.bucket_work[1], c.hits, c.ids, c.listed, c.listed_gap,
-        i64, i64, c.found, pairs), present=bool(self_on))
+    i64, f64, arrays = types.int64, types.float64, _list_arrays(c)
+    pairs = KernelPointer(_list_pairs, (field, i64, i64, i64, grid, f64, arrays, c.hits[0],
+                                        c.ids[0], i64, i64), i64, present=bool(self_on))
+    runs = KernelPointer(_list_runs, (field, i64, i64, grid, f64, arrays, c.hits, c.ids, i64,
+                                      i64, c.found, pairs), present=bool(self_on))
     c = c._replace(list_runs=runs, list_pairs=pairs)
     return c._replace(visit=KernelPointer(_visit, (field, field, c, types.int64, types.float64),
                                           types.int64, present=bool(self_on)))
@@ -224,6 +220,14 @@ def with_room(c: RobustContact) -> RobustContact:
     cap = min(max(2 * c.listed.shape[0], int(1.25 * c.count[1])), MAX_LISTED_PER_POINT * n)
     return c._replace(listed=np.zeros((cap, 5), np.int64), listed_gap=np.zeros(cap),
                       count=_no_list())
+
+
+@register_jitable
+def _list_arrays(c):
+    """The arrays _make_list's queries read and write, in _list_pairs's order (one argument
+    for the pointers between them, not thirteen; from Python too, for their types)."""
+    return (c.triangles, c.edges, c.box, c.anchor[3], c.rest, c.neighbours, c.neighbour_count,
+            c.entry_box, c.bucket_start, c.entries, c.bucket_work[1], c.listed, c.listed_gap)
 
 
 def _no_list() -> np.ndarray:
@@ -588,9 +592,8 @@ def _make_list(x, c):
         queries = x.shape[1] if kind == 0 else edges.shape[0]
         base = min(total, rows)
         share = (rows - base) // CHUNKS
-        c.list_runs(x, kind, queries, g, tris, edges, box, skin, c.rest, c.neighbours,
-                    c.neighbour_count, h, eb, start, c.entries, slot, c.hits, c.ids, c.listed,
-                    c.listed_gap, base, share, found, c.list_pairs)
+        c.list_runs(x, kind, queries, g, h, _list_arrays(c), c.hits, c.ids, base, share, found,
+                    c.list_pairs)
         fits, here = True, 0
         for run in range(CHUNKS):
             fits &= found[run] <= share
@@ -604,10 +607,8 @@ def _make_list(x, c):
                     c.listed_gap[to] = c.listed_gap[at]
                 total += found[run]
         elif total + here <= rows:  # a share, not the rows, too small: again in one run
-            total += c.list_pairs(x, kind, 0, queries, g, tris, edges, box, skin, c.rest,
-                                  c.neighbours, c.neighbour_count, h, eb, start, c.entries,
-                                  slot, c.hits[0], c.ids[0], c.listed, c.listed_gap, base,
-                                  rows)
+            total += c.list_pairs(x, kind, 0, queries, g, h, _list_arrays(c), c.hits[0],
+                                  c.ids[0], base, rows)
         else:
             total += here
     c.count[0] = total  # past the rows: no valid list (_round)
@@ -618,26 +619,24 @@ def _make_list(x, c):
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True, no_cpython_wrapper=True,
       pointer=True)
-def _list_runs(x, kind, count, g, tris, edges, box, skin, rest, neighbours, neighbour_count,
-               h, eb, start, entries, slot, hits, ids, listed, gap, base, share, found, pairs):
+def _list_runs(x, kind, count, g, h, arrays, hits, ids, base, share, found, pairs):
     """The `count` queries of `kind` in CHUNKS runs on the threads (`pairs`: the
     _list_pairs pointer), run r listing into listed[base + r share:][:share] and counting
     its pairs in found[r] (past its share too: then they did not fit)."""
     for run in prange(CHUNKS):
         lo, hi = _chunk(run, count)
         at = base + run * share
-        found[run] = pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, neighbours,
-                           neighbour_count, h, eb, start, entries, slot, hits[run], ids[run],
-                           listed, gap, at, at + share)
+        found[run] = pairs(x, kind, lo, hi, g, h, arrays, hits[run], ids[run], at, at + share)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", _nrt=False, no_cpython_wrapper=True,
       pointer=True)
-def _list_pairs(x, kind, lo, hi, g, tris, edges, box, skin, rest, neighbours,
-                neighbour_count, h, eb, start, entries, slot, hits, ids, listed, gap, at, end):
+def _list_pairs(x, kind, lo, hi, g, h, arrays, hits, ids, at, end):
     """_make_list's queries lo..hi of `kind` on the grid g (_grid), listing their pairs in
     order into listed[at:end] and their distances into gap; returns how many pairs it
     found (past `end` too). hits: scratch for the entries a query meets, ids: for a pair."""
+    (tris, edges, box, skin, rest, neighbours, neighbour_count, eb, start, entries, slot,
+     listed, gap) = arrays
     n0, n1 = int(g[7]), int(g[8])
     first_at = at
     for q in range(lo, hi):
